@@ -1,0 +1,1 @@
+"""Classical baselines: EDI deblurring, STCF and GEF event filtering."""

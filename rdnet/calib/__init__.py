@@ -1,0 +1,1 @@
+"""Sim-to-real calibration: statistics, mismatch localisation, effect fits, report."""

@@ -1,0 +1,50 @@
+"""``rdnet`` command line. Each subcommand is a module of this package with
+``register(subparsers)``; :data:`COMMANDS` lists them in help order.
+
+User errors (:class:`rdnet.errors.RdnetError`) print one line and exit with code 2.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from rdnet import __version__
+from rdnet.errors import RdnetError
+
+COMMANDS = ["info", "convert"]
+
+log = logging.getLogger("rdnet")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="rdnet", description="Simulate, restore and deblur with real-world degraded events.")
+    parser.add_argument("--version", action="version", version=f"rdnet {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in COMMANDS:
+        importlib.import_module(f"rdnet.cli.{name}").register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        rc = args.func(args)
+    except RdnetError as e:
+        print(f"rdnet {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    return int(rc or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,5 @@
+import sys
+
+from rdnet.cli import main
+
+sys.exit(main())

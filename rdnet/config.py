@@ -1,0 +1,220 @@
+"""params.yaml machinery: frozen dataclasses per section, unknown keys rejected.
+
+Each section's dataclass lives beside the code that uses it (``SensorConfig`` in
+:mod:`rdnet.sim.settings`, ...); :data:`SECTIONS` maps section names to them. Use::
+
+    params = load_params("params.yaml", sets=["degrade.refractory_us=500"])
+    degrade = section(params, "degrade")          # -> DegradeConfig, validated
+
+Overrides take the dotted keys of params.yaml (``section.key=value``, values parsed as
+YAML); a key that does not exist in the file is an error, as in ``dvc exp run -S``.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import importlib
+import types
+import typing
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+import yaml
+
+from rdnet.errors import ConfigError
+
+#: section name -> "module:Class" of its frozen dataclass (imported lazily).
+SECTIONS: dict[str, str] = {
+    "sensor": "rdnet.sim.settings:SensorConfig",
+    "degrade": "rdnet.sim.settings:DegradeConfig",
+    "voxel": "rdnet.events.voxel_config:VoxelConfig",
+}
+
+
+def register_section(name: str, target: str) -> None:
+    SECTIONS[name] = target
+
+
+def section_class(name: str) -> type:
+    try:
+        target = SECTIONS[name]
+    except KeyError:
+        raise ConfigError(name, f"unknown section; known: {', '.join(sorted(SECTIONS))}")
+    mod, _, cls = target.partition(":")
+    return getattr(importlib.import_module(mod), cls)
+
+
+def _coerce(value: Any, tp: Any, key: str) -> Any:
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if tp is Any:
+        return value
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        errs = []
+        for a in args:
+            if a is type(None):
+                continue
+            try:
+                return _coerce(value, a, key)
+            except ConfigError as e:
+                errs.append(str(e))
+        raise ConfigError(key, f"value {value!r} does not fit {tp}")
+    if origin is typing.Literal:
+        if value not in args:
+            raise ConfigError(key, f"must be one of {list(args)}, got {value!r}")
+        return value
+    if origin in (tuple, list):
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(key, f"expected a list, got {value!r}")
+        if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_coerce(v, args[0], key) for v in value)
+        if origin is tuple and args:
+            if len(args) != len(value):
+                raise ConfigError(key, f"expected {len(args)} values, got {len(value)}")
+            return tuple(_coerce(v, a, key) for v, a in zip(value, args))
+        return tuple(value) if origin is tuple else list(value)
+    if origin is dict or tp is dict:
+        if not isinstance(value, Mapping):
+            raise ConfigError(key, f"expected a mapping, got {value!r}")
+        return dict(value)
+    if dataclasses.is_dataclass(tp):
+        if isinstance(value, tp):
+            return value
+        return from_dict(tp, value, key)
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(key, f"expected true/false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not (isinstance(value, int) or (isinstance(value, float) and value.is_integer())):
+            raise ConfigError(key, f"expected an integer, got {value!r}")
+        return int(value)
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(key, f"expected a number, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(key, f"expected a string, got {value!r}")
+        return value
+    return value
+
+
+def from_dict(cls: type, data: Mapping | None, section: str, source: str | Path | None = None):
+    """Build frozen dataclass ``cls`` from ``data``; unknown keys and bad types raise
+    :class:`ConfigError` naming ``section.key``. Missing keys take the defaults."""
+    data = {} if data is None else data
+    if not isinstance(data, Mapping):
+        raise ConfigError(section, f"expected a mapping, got {type(data).__name__}", source)
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise ConfigError(f"{section}.{unknown[0]}", f"unknown key; known keys: {', '.join(fields)}", source)
+    kwargs = {}
+    for name, value in data.items():
+        kwargs[name] = _coerce(value, hints[name], f"{section}.{name}")
+    try:
+        return cls(**kwargs)
+    except ConfigError as e:
+        if source and not e.source:
+            raise ConfigError(e.key, str(e).split(": ", 1)[-1], source) from None
+        raise
+    except TypeError as e:
+        raise ConfigError(section, str(e), source) from None
+
+
+def to_dict(obj) -> dict:
+    """Plain-dict form of a config dataclass (tuples become lists, for YAML/JSON)."""
+    def conv(v):
+        if dataclasses.is_dataclass(v):
+            return {f.name: conv(getattr(v, f.name)) for f in dataclasses.fields(v)}
+        if isinstance(v, (list, tuple)):
+            return [conv(x) for x in v]
+        if isinstance(v, dict):
+            return {k: conv(x) for k, x in v.items()}
+        return v
+    return conv(obj)
+
+
+def read_yaml(path: str | Path) -> dict:
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise ConfigError("params", f"cannot read: {e.strerror}", path) from None
+    try:
+        data = yaml.safe_load(text) or {}
+    except yaml.YAMLError as e:
+        raise ConfigError("params", f"invalid YAML: {e}", path) from None
+    if not isinstance(data, dict):
+        raise ConfigError("params", "top level must be a mapping", path)
+    return data
+
+
+def parse_set(item: str) -> tuple[list[str], Any]:
+    """``"a.b=3"`` -> (["a", "b"], 3). The value is parsed as YAML."""
+    if "=" not in item:
+        raise ConfigError(item, "expected section.key=value")
+    key, _, raw = item.partition("=")
+    key = key.strip()
+    if not key or any(not part for part in key.split(".")):
+        raise ConfigError(item, "expected section.key=value")
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else ""
+    except yaml.YAMLError:
+        value = raw
+    return key.split("."), value
+
+
+def apply_sets(params: Mapping, sets: Iterable[str], source: str | Path | None = None) -> dict:
+    """A copy of ``params`` with dotted overrides applied. The key must exist already
+    (except inside free-form mappings of a dataclass field typed ``dict``)."""
+    out = copy.deepcopy(dict(params))
+    for item in sets or ():
+        parts, value = parse_set(item)
+        node = out
+        for i, part in enumerate(parts[:-1]):
+            if not isinstance(node, dict) or part not in node:
+                raise ConfigError(".".join(parts), "unknown key (not in params)", source)
+            node = node[part]
+        last = parts[-1]
+        if not isinstance(node, dict) or last not in node:
+            # allow sections known to rdnet even if the file omits the key
+            if len(parts) == 2 and parts[0] in SECTIONS and isinstance(node, dict):
+                cls = section_class(parts[0])
+                if last not in {f.name for f in dataclasses.fields(cls)}:
+                    raise ConfigError(".".join(parts), "unknown key", source)
+            else:
+                raise ConfigError(".".join(parts), "unknown key (not in params)", source)
+        node[last] = value
+    return out
+
+
+def load_params(path: str | Path | None = None, sets: Iterable[str] = (), *,
+                base: Mapping | None = None) -> dict:
+    """Read params.yaml (or start from ``base``), apply overrides, validate every known
+    section, and return the plain dict."""
+    if path is not None:
+        params = read_yaml(path)
+    else:
+        params = copy.deepcopy(dict(base or {}))
+    for name in SECTIONS:
+        params.setdefault(name, {})
+    params = apply_sets(params, sets, path)
+    for name in SECTIONS:
+        from_dict(section_class(name), params.get(name), name, path)
+    return params
+
+
+def section(params: Mapping, name: str, source: str | Path | None = None):
+    """The validated frozen dataclass of section ``name``."""
+    return from_dict(section_class(name), params.get(name) or {}, name, source)
+
+
+def positive(key: str, value: float, *, allow_zero: bool = True) -> None:
+    """Range check helper for ``__post_init__``."""
+    if value != value or value < 0 or (not allow_zero and value == 0):
+        raise ConfigError(key, f"must be {'>= 0' if allow_zero else '> 0'}, got {value}")

@@ -1,0 +1,1 @@
+"""Evaluation: image and restoration metrics, tables, figures."""

@@ -1,0 +1,1 @@
+"""Networks: composable blocks, the dual-branch stage network, RDNet, DeblurNet, losses."""
