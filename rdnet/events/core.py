@@ -66,7 +66,7 @@ class Events:
         if not isinstance(arr, np.ndarray) or arr.dtype != EVENT_DTYPE:
             try:
                 arr = np.asarray(arr)
-                if arr.dtype.names is None or set(arr.dtype.names) < set("txyp"):
+                if arr.dtype.names is None or not set("txyp") <= set(arr.dtype.names):
                     raise TypeError
                 conv = np.empty(arr.shape[0], dtype=EVENT_DTYPE)
                 for k in "txyp":

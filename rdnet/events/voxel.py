@@ -29,21 +29,24 @@ def voxel_grid(events: Events, bins: int, t0_us: int, duration_us: int, *,
         raise ValidationError("bins", f"must be >= 1, got {bins}")
     if duration_us <= 0:
         raise ValidationError("duration_us", f"must be > 0, got {duration_us}")
+    t0_us, duration_us = int(t0_us), int(duration_us)
     H, W = events.height, events.width
     i0 = int(np.searchsorted(events.t, t0_us, "left"))
     i1 = int(np.searchsorted(events.t, t0_us + duration_us, "right"))
     a = events.array[i0:i1]
     pol = a["p"].astype(np.float32) * 2.0 - 1.0
     pix = a["y"].astype(np.int64) * W + a["x"].astype(np.int64)
-    rel = (a["t"] - t0_us).astype(np.float64) / float(duration_us)
+    # Integer arithmetic for the bin index: float (t - t0) / T * bins can fall just below
+    # an exact bin boundary and put the event in the previous bin.
+    dt = a["t"] - np.int64(t0_us)
     size = bins * H * W
     if mode == "hard":
-        b = np.minimum((rel * bins).astype(np.int64), bins - 1)
+        b = np.minimum(dt * bins // duration_us, bins - 1)
         grid = np.bincount(b * (H * W) + pix, weights=pol, minlength=size)
     elif mode == "bilinear":
-        tau = rel * (bins - 1)
-        lo = np.floor(tau).astype(np.int64)
-        frac = tau - lo
+        num = dt * (bins - 1)            # tau = num / T, split exactly into floor and fraction
+        lo = num // duration_us
+        frac = (num - lo * duration_us).astype(np.float64) / float(duration_us)
         hi = np.minimum(lo + 1, bins - 1)
         grid = np.bincount(lo * (H * W) + pix, weights=pol * (1.0 - frac), minlength=size)
         grid += np.bincount(hi * (H * W) + pix, weights=pol * frac, minlength=size)

@@ -1,0 +1,115 @@
+"""Helpers shared by the recording formats: atomic output files and error wrapping.
+
+Every reader turns whatever goes wrong with a file (missing, unreadable, corrupt,
+inconsistent) into one :class:`~rdnet.errors.FormatError` naming the file and the field;
+every writer writes to a temporary name in the target folder and ``os.replace``-s it
+on success, so a failure never leaves a partial output file.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from rdnet.errors import FormatError, RdnetError, ValidationError
+
+#: Exceptions that third-party decoders (h5py, zipfile, pandas, aedat, cv2) raise on bad
+#: input. ``MemoryError`` is included because a corrupt header may claim a huge array.
+DECODE_ERRORS: tuple[type[BaseException], ...] = (
+    OSError, ValueError, KeyError, TypeError, RuntimeError, IndexError, EOFError,
+    MemoryError, OverflowError, UnicodeDecodeError)
+
+
+def require_file(path: str | Path) -> Path:
+    """``path`` as a Path; :class:`FormatError` if it is not an existing regular file."""
+    p = Path(path)
+    if not p.exists():
+        raise FormatError(p, None, "no such file")
+    if not p.is_file():
+        raise FormatError(p, None, "not a regular file")
+    if not os.access(p, os.R_OK):
+        raise FormatError(p, None, "permission denied")
+    return p
+
+
+def as_format_error(path: str | Path, exc: BaseException, field: str | None = None,
+                    what: str = "cannot read") -> FormatError:
+    """Convert ``exc`` into a :class:`FormatError` naming ``path`` (and the field)."""
+    if isinstance(exc, FormatError):
+        return exc
+    if isinstance(exc, ValidationError):
+        return FormatError(path, field or exc.field, str(exc).split(": ", 1)[-1])
+    if isinstance(exc, RdnetError):
+        return FormatError(path, field, str(exc))
+    msg = str(exc).strip() or type(exc).__name__
+    if isinstance(exc, MemoryError):
+        msg = "data too large to load (corrupt header?)"
+    return FormatError(path, field, f"{what} ({type(exc).__name__}: {msg.splitlines()[0]})")
+
+
+@contextlib.contextmanager
+def wrap_errors(path: str | Path, field: str | None = None, what: str = "cannot read") -> Iterator[None]:
+    """Context manager: re-raise :data:`DECODE_ERRORS` and :class:`ValidationError`
+    as :class:`FormatError` for ``path``."""
+    try:
+        yield
+    except FormatError:
+        raise
+    except (ValidationError, RdnetError) + DECODE_ERRORS as e:
+        raise as_format_error(path, e, field, what) from e
+
+
+def temp_path_for(path: str | Path) -> Path:
+    """A fresh, unused temporary file name in the folder of ``path`` (same file system,
+    so ``os.replace`` is atomic). The file is created empty."""
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise FormatError(path, None, f"output folder {str(folder)!r} does not exist")
+    try:
+        fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+        os.close(fd)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(name, 0o666 & ~umask)      # mkstemp makes 0600; give the final file the usual mode
+    except OSError as e:
+        raise FormatError(path, None, f"cannot write ({e.strerror or e})") from None
+    return Path(name)
+
+
+def remove_quietly(path: str | Path) -> None:
+    with contextlib.suppress(OSError):
+        os.unlink(path)
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path next to ``path``; on normal exit it replaces ``path``
+    (``os.replace``), on an exception it is deleted and ``path`` is left untouched."""
+    path = Path(path)
+    tmp = temp_path_for(path)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        remove_quietly(tmp)
+        raise
+
+
+def checked_cast(values: np.ndarray, target, path, field: str) -> np.ndarray:
+    """Cast an integer column to ``target``; values that do not fit raise FormatError."""
+    target = np.dtype(target)
+    if values.dtype.kind not in "iub":
+        raise FormatError(path, field, f"expected an integer dtype ({target}), got {values.dtype}")
+    if values.dtype == target:
+        return values
+    if values.size and values.dtype.kind != "b":
+        info = np.iinfo(target)
+        lo, hi = int(values.min()), int(values.max())
+        if lo < info.min or hi > info.max:
+            raise FormatError(path, field, f"value {lo if lo < info.min else hi} does not fit {target}")
+    return values.astype(target)

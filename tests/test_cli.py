@@ -1,0 +1,104 @@
+"""``rdnet info`` and ``rdnet convert`` through ``rdnet.cli.main``."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from rdnet.cli import main
+from rdnet.events.io import load, read_events, save
+
+
+def _run(capsys, argv):
+    rc = main(argv)
+    out, err = capsys.readouterr()
+    assert "Traceback" not in out + err
+    return rc, out, err
+
+
+def test_info_davis346_human_and_json(capsys, davis346_path):
+    rc, out, _ = _run(capsys, ["info", str(davis346_path)])
+    assert rc == 0
+    assert "DAVIS346 (346 x 260)" in out
+    assert "78,830" in out and "ON 41,257 / OFF 37,573" in out
+    assert "59 (uint8 grey), exposure 500 us" in out and "25.000 Hz (period 40.0 ms)" in out
+    rc, out, _ = _run(capsys, ["info", str(davis346_path), "--json"])
+    s = json.loads(out)
+    assert rc == 0 and s["events"] == 78_830 and s["frames"] == 59 and s["width"] == 346
+    assert s["active_pixels"] == 7_772 and s["exposure_us_median"] == 500.0
+
+
+def test_info_text_needs_or_infers_size(capsys, ecd_path):
+    rc, out, _ = _run(capsys, ["info", str(ecd_path), "--width", "240", "--height", "180", "--json"])
+    s = json.loads(out)
+    assert rc == 0 and (s["width"], s["height"]) == (240, 180) and s["events"] == 34_634
+    assert s["on_events"] == 13_821 and s["frames"] == 0
+    rc, out, _ = _run(capsys, ["info", str(ecd_path), "--width", "240"])
+    assert rc == 2
+
+
+def test_info_shows_extra_event_groups(capsys, tmp_path, make_recording, events_factory, rng):
+    path = tmp_path / "seq.h5"
+    save(path, make_recording(100, 2), extra_events={"events_ideal": events_factory(rng, 77, 64, 48)})
+    rc, out, _ = _run(capsys, ["info", str(path)])
+    assert rc == 0 and "/events_ideal" in out and "77 events" in out
+    rc, out, _ = _run(capsys, ["info", str(path), "--json"])
+    assert json.loads(out)["extra_event_groups"] == {"events_ideal": 77}
+
+
+@pytest.mark.parametrize("name", ["missing.h5", "bad.h5", "x.mp4", "bad.aedat4", "bad.txt"])
+def test_info_bad_input_exits_2_with_one_line(capsys, tmp_path, name):
+    if name != "missing.h5":
+        (tmp_path / name).write_bytes(b"\x00garbage\x01" * 10)
+    rc, out, err = _run(capsys, ["info", str(tmp_path / name)])
+    assert rc == 2 and out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("rdnet info: error: ") and name in lines[0]
+
+
+def test_convert_between_formats(capsys, tmp_path, davis346_path):
+    h5 = tmp_path / "d.h5"
+    rc, out, _ = _run(capsys, ["convert", str(davis346_path), str(h5)])
+    assert rc == 0 and "78,830 events, 59 frames" in out
+    npz = tmp_path / "d.npz"
+    assert _run(capsys, ["convert", str(h5), str(npz)])[0] == 0
+    (tmp_path / "txt").mkdir()
+    txt = tmp_path / "txt" / "events.txt"
+    assert _run(capsys, ["convert", str(npz), str(txt)])[0] == 0
+    ref = load(davis346_path)
+    for p in (h5, npz, txt):
+        back = load(p)
+        np.testing.assert_array_equal(back.events.array, ref.events.array)
+        np.testing.assert_array_equal(back.frames.images, ref.frames.images)
+
+
+def test_convert_text_with_size_and_keep_extra_groups(capsys, tmp_path, ecd_path, events_factory, rng):
+    out = tmp_path / "ecd.h5"
+    rc, _, _ = _run(capsys, ["convert", str(ecd_path), str(out), "--width", "240", "--height", "180"])
+    assert rc == 0 and (load(out).width, load(out).height) == (240, 180)
+    ideal = events_factory(rng, 50, 240, 180)
+    save(tmp_path / "two.h5", load(out), extra_events={"events_ideal": ideal})
+    assert _run(capsys, ["convert", str(tmp_path / "two.h5"), str(tmp_path / "copy.h5")])[0] == 0
+    np.testing.assert_array_equal(read_events(tmp_path / "copy.h5", "events_ideal").array, ideal.array)
+
+
+@pytest.mark.parametrize("out_name", ["o.h5", "o.npz", "o.aedat4", "o.xyz"])
+def test_failing_convert_leaves_no_output(capsys, tmp_path, out_name):
+    bad = tmp_path / "in.h5"
+    bad.write_bytes(b"\x89HDF\r\n\x1a\n" + b"\x00" * 100)
+    rc, out, err = _run(capsys, ["convert", str(bad), str(tmp_path / out_name)])
+    assert rc == 2 and len(err.strip().splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.h5"]
+
+
+def test_convert_into_missing_folder(capsys, tmp_path, davis346_path):
+    rc, out, err = _run(capsys, ["convert", str(davis346_path), str(tmp_path / "no" / "such" / "o.h5")])
+    assert rc == 2 and "does not exist" in err and not (tmp_path / "no").exists()
+
+
+def test_convert_onto_itself_is_refused(capsys, tmp_path, make_recording):
+    path = tmp_path / "r.h5"
+    save(path, make_recording(10))
+    rc, _, err = _run(capsys, ["convert", str(path), str(path)])
+    assert rc == 2 and "output is the input" in err
