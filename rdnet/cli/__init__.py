@@ -1,5 +1,5 @@
-"""``rdnet`` command line. Each subcommand is a module of this package with
-``register(subparsers)``; :data:`COMMANDS` lists them in help order.
+"""``rdnet`` command line. Each subcommand is a module with ``register(subparsers)``;
+:data:`COMMANDS` lists them in help order (short names live in this package).
 
 User errors (:class:`rdnet.errors.RdnetError`) print one line and exit with code 2.
 """
@@ -13,7 +13,7 @@ import sys
 from rdnet import __version__
 from rdnet.errors import RdnetError
 
-COMMANDS = ["info", "convert"]
+COMMANDS = ["info", "convert", "simulate"]
 
 log = logging.getLogger("rdnet")
 
@@ -26,7 +26,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMANDS:
-        importlib.import_module(f"rdnet.cli.{name}").register(sub)
+        mod = name if "." in name else f"rdnet.cli.{name}"
+        importlib.import_module(mod).register(sub)
     return parser
 
 

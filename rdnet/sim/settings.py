@@ -1,11 +1,12 @@
 """``sensor``, ``degrade`` and ``randomize`` sections of params.yaml.
 
 Zero (or ``onoff_ratio = 1``) turns a degradation off; the equations live in
-:mod:`rdnet.sim.effects`.
+:mod:`rdnet.sim.effects`, the per-sequence randomization in :mod:`rdnet.sim.randomize`.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from typing import Tuple
 
 from rdnet.config import positive
 from rdnet.errors import ConfigError
@@ -29,33 +30,121 @@ class SensorConfig:
         positive("sensor.log_eps", self.log_eps, allow_zero=False)
 
 
+#: The degradations proper (each off at 0, ``onoff_ratio`` off at 1); the remaining
+#: DegradeConfig fields only shape an effect (``shot_noise_bright_factor``,
+#: ``leak_spread_decades``) and are not randomized by default.
+EFFECT_KEYS: tuple[str, ...] = (
+    "threshold_sigma", "onoff_ratio", "cutoff_hz", "sample_period_us", "refractory_us",
+    "shot_noise_hz", "leak_hz", "hot_pixel_fraction", "hot_pixel_hz", "jitter_us", "latency_us")
+
+
 @dataclass(frozen=True)
 class DegradeConfig:
-    """Real-sensor degradations (all off when zero; ``onoff_ratio`` off at 1)."""
+    """Real-sensor degradations (all off when zero; ``onoff_ratio`` off at 1).
+
+    Effects (equations and sources in :mod:`rdnet.sim.effects`):
+
+    ``threshold_sigma``   per-pixel Gaussian mismatch of the ON and OFF thresholds, std as
+                          a fraction of the nominal threshold (v2e ``sigma_thres``).
+    ``onoff_ratio``       ON threshold / OFF threshold; the geometric mean of the nominal
+                          thresholds is kept.
+    ``cutoff_hz``         photoreceptor 3 dB bandwidth at full intensity (I = 1); scales
+                          with intensity, so dark pixels are slower (v2e).
+    ``sample_period_us``  readout period: at most one event per pixel per period.
+    ``refractory_us``     dead time after each event of a pixel.
+    ``shot_noise_hz``     ON+OFF Poisson noise rate of a pixel in the dark (I = 0).
+    ``leak_hz``           mean rate of ON-only leak events per pixel.
+    ``hot_pixel_fraction``/``hot_pixel_hz``  fraction of pixels that fire continuously
+                          and their rate.
+    ``jitter_us``         std of Gaussian timestamp noise (truncated at 4 std).
+    ``latency_us``        constant timestamp delay.
+
+    Shape parameters (not effects; 0 does not mean off):
+
+    ``shot_noise_bright_factor``  shot-noise rate at I = 1 relative to the dark rate
+                          (v2e ``SHOT_NOISE_INTEN_FACTOR`` = 0.25); linear in between.
+    ``leak_spread_decades``  std of log10 of the per-pixel leak rate (v2e
+                          ``noise_rate_cov_decades`` = 0.1).
+    """
 
     threshold_sigma: float = 0.0      # per-pixel Gaussian threshold mismatch (fraction of threshold)
     onoff_ratio: float = 1.0          # ON threshold / OFF threshold
     cutoff_hz: float = 0.0            # photoreceptor low-pass cutoff at full intensity
     sample_period_us: float = 0.0     # readout: at most one event per pixel per period
     refractory_us: float = 0.0        # dead time after each event of a pixel
-    shot_noise_hz: float = 0.0        # balanced ON/OFF Poisson noise per pixel
-    leak_hz: float = 0.0              # ON-only leak events per pixel
+    shot_noise_hz: float = 0.0        # balanced ON/OFF Poisson noise per pixel (in the dark)
+    leak_hz: float = 0.0              # ON-only leak events per pixel (mean over pixels)
     hot_pixel_fraction: float = 0.0   # fraction of pixels that fire continuously
     hot_pixel_hz: float = 0.0         # rate of each hot pixel
     jitter_us: float = 0.0            # Gaussian timestamp noise (std)
     latency_us: float = 0.0           # constant timestamp delay
+    shot_noise_bright_factor: float = 0.25  # shot-noise rate at I=1 / rate at I=0
+    leak_spread_decades: float = 0.1  # std of log10(per-pixel leak rate)
 
     def __post_init__(self):
         for f in fields(self):
             v = getattr(self, f.name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise ConfigError(f"degrade.{f.name}", f"expected a number, got {v!r}")
             if f.name == "onoff_ratio":
                 positive("degrade.onoff_ratio", v, allow_zero=False)
             else:
                 positive(f"degrade.{f.name}", v)
+            if v == float("inf"):
+                raise ConfigError(f"degrade.{f.name}", "must be finite")
         if self.hot_pixel_fraction > 1:
             raise ConfigError("degrade.hot_pixel_fraction", f"must be <= 1, got {self.hot_pixel_fraction}")
+        if self.threshold_sigma > 1:
+            raise ConfigError("degrade.threshold_sigma",
+                              f"must be <= 1 (a fraction of the threshold), got {self.threshold_sigma}")
 
     def active(self) -> list[str]:
         """Names of the effects that are on."""
-        return [f.name for f in fields(self)
-                if (getattr(self, f.name) != 1.0 if f.name == "onoff_ratio" else getattr(self, f.name) != 0)]
+        return [k for k in EFFECT_KEYS
+                if (getattr(self, k) != 1.0 if k == "onoff_ratio" else getattr(self, k) != 0)]
+
+    @property
+    def is_ideal(self) -> bool:
+        return not self.active()
+
+
+@dataclass(frozen=True)
+class RandomizeConfig:
+    """``randomize`` section: per-sequence degradation drawn around ``degrade``.
+
+    Each randomized key of the ``degrade`` section that is active is multiplied by a
+    factor drawn uniformly from ``train_scale`` (training sequences) or ``test_scale``
+    (test sequences), independently per key and per sequence; ``onoff_ratio`` is scaled
+    in log space (r -> r ** factor). The two ranges must be disjoint, so test
+    degradations are never seen in training. ``keys``: the keys to randomize (empty =
+    all active effects of :data:`EFFECT_KEYS`). ``enabled: false`` uses ``degrade``
+    unchanged for both splits (ranges then unchecked).
+    """
+
+    enabled: bool = True
+    train_scale: Tuple[float, float] = (0.5, 0.9)
+    test_scale: Tuple[float, float] = (1.0, 1.5)
+    keys: Tuple[str, ...] = ()
+
+    def __post_init__(self):
+        object.__setattr__(self, "train_scale", tuple(float(v) for v in self.train_scale))
+        object.__setattr__(self, "test_scale", tuple(float(v) for v in self.test_scale))
+        object.__setattr__(self, "keys", tuple(self.keys))
+        for name in ("train_scale", "test_scale"):
+            rng = getattr(self, name)
+            key = f"randomize.{name}"
+            if len(rng) != 2:
+                raise ConfigError(key, f"expected [lo, hi], got {list(rng)}")
+            lo, hi = rng
+            positive(key, lo, allow_zero=True)
+            if not lo <= hi or hi == float("inf"):
+                raise ConfigError(key, f"expected finite lo <= hi, got {list(rng)}")
+        for k in self.keys:
+            if k not in EFFECT_KEYS:
+                raise ConfigError("randomize.keys", f"unknown degrade key {k!r}; known: {', '.join(EFFECT_KEYS)}")
+        if self.enabled:
+            (a0, a1), (b0, b1) = self.train_scale, self.test_scale
+            if not (a1 < b0 or b1 < a0):
+                raise ConfigError("randomize.test_scale",
+                                  f"train_scale {list(self.train_scale)} and test_scale "
+                                  f"{list(self.test_scale)} must be disjoint")

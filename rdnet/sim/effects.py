@@ -1,0 +1,194 @@
+"""Real-sensor degradations of the DVS model (keys of :class:`DegradeConfig`).
+
+The per-pixel effects that act *inside* the pixel (threshold mismatch, ON/OFF ratio,
+photoreceptor bandwidth, refractory period, limited readout, leak) are evaluated in the
+fused per-pixel kernel of :mod:`rdnet.sim.sensor`; this module holds their parameters,
+equations and the vectorized per-chunk effects (shot noise, hot pixels, timestamp jitter
+and latency). Every effect is off at 0 (``onoff_ratio`` at 1).
+
+Pixel model (Lichtsteiner, Posch, Delbruck, "A 128x128 120 dB 15 us latency asynchronous
+temporal contrast vision sensor", IEEE JSSC 2008): the photoreceptor output follows the log
+intensity ``L = log(I + log_eps)``; the pixel memorises a reference level ``ref`` at its
+last event and emits an ON (OFF) event when ``L - ref >= theta_on`` (``<= -theta_off``);
+then ``ref`` moves by one threshold (ESIM, Rebecq, Gehrig, Scaramuzza, CoRL 2018).
+
+Effects and the sources they follow:
+
+* ``threshold_sigma`` (v2e, Hu, Liu, Delbruck, CVPRW 2021, Sec. 3.1; ESIM Sec. 3):
+  ``theta_c(x, y) = theta_c * (1 + sigma * n_c(x, y))``, ``n_c ~ N(0, 1)`` independent for
+  c in {ON, OFF} and per pixel, drawn once per sequence; clipped below at
+  :data:`MIN_THRESHOLD` (v2e clips at 0.01) so thresholds stay > 0.
+* ``onoff_ratio`` r: ``theta_on = theta_on0 * sqrt(r)``, ``theta_off = theta_off0 / sqrt(r)``;
+  the geometric mean ``sqrt(theta_on theta_off)`` of the nominal thresholds is kept and
+  ``theta_on / theta_off = r * theta_on0 / theta_off0``.
+* ``cutoff_hz`` f0 (v2e Sec. 3.2, ``emulator_utils.low_pass_filter``): first-order low-pass
+  of the log intensity whose cutoff is proportional to intensity,
+  ``f(I) = f0 (I + floor) / (1 + floor)`` with ``floor`` = :data:`CUTOFF_FLOOR` (v2e's
+  ``(I255 + 20) / 275``), so dark pixels are slower; discretised exactly for a step dt:
+  ``lp <- lp + alpha (L - lp)``, ``alpha = 1 - exp(-2 pi f(I) dt)``.
+* ``refractory_us`` (v2e Sec. 3.4; DVS-Voltmeter, Lin et al., ECCV 2022): a pixel cannot
+  emit for ``refractory_us`` after an event. Crossings in the dead time are dropped, and
+  ``ref`` still moves by one threshold per dropped crossing (the pixel is held in reset,
+  its reference follows the input; Lichtsteiner 2008), so no burst follows the dead time.
+* ``sample_period_us`` P (limited readout bandwidth, RDNet paper Fig. 2b): the readout
+  services each pixel at most once per period ``[m P, (m + 1) P)``; further crossings of
+  the pixel in the same period are lost (``ref`` moves as for refractory), so fast changes
+  lose events. Timestamps keep the crossing time.
+* ``shot_noise_hz`` R (v2e Sec. 3.5, ``generate_shot_noise``): Poisson noise events,
+  balanced ON/OFF, rate per pixel ``R (1 + (b - 1) min(I, 1))`` with
+  ``b = shot_noise_bright_factor`` (v2e ``SHOT_NOISE_INTEN_FACTOR`` = 0.25): R in the dark,
+  ``b R`` at full intensity. Counts per pixel per chunk are Poisson with the integral of
+  the rate over the chunk; times are uniform in the chunk. Noise events are added to the
+  output and do not move the reference.
+* ``leak_hz`` (v2e Sec. 3.5, leak events; Nozaki & Delbruck, IEEE TED 2017): junction
+  leakage makes the reference drift down, ``d ref / dt = -leak_rate(x, y) theta_on(x, y)``,
+  so a static pixel emits ON events at ``leak_rate``; per-pixel rates are log-normal,
+  ``leak_rate = leak_hz 10^(s n) / E[10^(s n)]`` with ``s = leak_spread_decades`` (mean over
+  pixels = ``leak_hz``), and the initial reference is lowered by ``u theta_on``,
+  ``u ~ U(0, 1)``, so the leak phases are random (v2e).
+* ``hot_pixel_fraction``/``hot_pixel_hz``: ``round(fraction H W)`` pixels, chosen once per
+  sequence, emit Poisson events at ``hot_pixel_hz`` regardless of the scene; each hot pixel
+  has a fixed polarity (ON or OFF with probability 1/2).
+* ``jitter_us`` s and ``latency_us`` d (v2e Sec. 3.4 timestamp jitter; DVS-Voltmeter):
+  ``t' = t + round(d + s z)``, ``z ~ N(0, 1)`` truncated to [-4, 4], events re-sorted;
+  times are clipped at the sequence start.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from rdnet.events.core import EVENT_DTYPE
+from rdnet.sim.settings import DegradeConfig, SensorConfig
+
+#: Lower clip of mismatched thresholds in log units (v2e).
+MIN_THRESHOLD = 0.01
+#: Intensity floor of the photoreceptor bandwidth, relative to full scale (v2e: 20/255).
+CUTOFF_FLOOR = 20.0 / 255.0
+#: Truncation of the Gaussian timestamp jitter, in standard deviations.
+JITTER_TRUNCATE = 4.0
+
+
+# --- per-sequence pixel parameters -----------------------------------------------------
+
+def pixel_thresholds(height: int, width: int, sensor: SensorConfig, degrade: DegradeConfig,
+                     rng: np.random.Generator | None) -> tuple[np.ndarray, np.ndarray]:
+    """(theta_on, theta_off), each (H, W) float64: nominal thresholds with the ON/OFF
+    ratio and the per-pixel Gaussian mismatch applied (see the module docstring)."""
+    root = math.sqrt(degrade.onoff_ratio)
+    on = np.full((height, width), sensor.threshold_on * root)
+    off = np.full((height, width), sensor.threshold_off / root)
+    if degrade.threshold_sigma > 0:
+        s = degrade.threshold_sigma
+        on *= 1.0 + s * rng.standard_normal((height, width))
+        off *= 1.0 + s * rng.standard_normal((height, width))
+        np.maximum(on, MIN_THRESHOLD, out=on)
+        np.maximum(off, MIN_THRESHOLD, out=off)
+    return on, off
+
+
+def leak_rates(height: int, width: int, degrade: DegradeConfig,
+               rng: np.random.Generator | None) -> np.ndarray:
+    """(H, W) float64 per-pixel leak rate in Hz, log-normal with mean ``leak_hz``."""
+    if degrade.leak_hz <= 0:
+        return np.zeros((height, width))
+    s = degrade.leak_spread_decades * math.log(10.0)
+    # E[exp(s n)] = exp(s^2 / 2): normalise so the mean rate over pixels is leak_hz
+    return degrade.leak_hz * np.exp(s * rng.standard_normal((height, width)) - 0.5 * s * s)
+
+
+def leak_phase(height: int, width: int, degrade: DegradeConfig,
+               rng: np.random.Generator | None) -> np.ndarray:
+    """(H, W) initial lowering of the reference in units of theta_on (U(0,1) when leak is on)."""
+    if degrade.leak_hz <= 0:
+        return np.zeros((height, width))
+    return rng.random((height, width))
+
+
+def hot_pixels(height: int, width: int, degrade: DegradeConfig,
+               rng: np.random.Generator | None) -> tuple[np.ndarray, np.ndarray]:
+    """(flat pixel indices int64 sorted, polarity uint8) of the hot pixels."""
+    n = int(round(degrade.hot_pixel_fraction * height * width))
+    if n == 0 or degrade.hot_pixel_hz <= 0:
+        return np.empty(0, np.int64), np.empty(0, np.uint8)
+    idx = np.sort(rng.choice(height * width, size=n, replace=False)).astype(np.int64)
+    pol = (rng.random(n) < 0.5).astype(np.uint8)
+    return idx, pol
+
+
+# --- in-kernel coefficients ------------------------------------------------------------
+
+def lowpass_coef(degrade: DegradeConfig) -> float:
+    """``c`` such that ``alpha = 1 - exp(-c dt_us (I + CUTOFF_FLOOR))`` (0 = filter off)."""
+    if degrade.cutoff_hz <= 0:
+        return 0.0
+    return 2.0 * math.pi * degrade.cutoff_hz * 1e-6 / (1.0 + CUTOFF_FLOOR)
+
+
+def shot_rate_coefs(degrade: DegradeConfig) -> tuple[float, float]:
+    """``(a, b)`` with the shot-noise rate ``a + b min(I, 1)`` in events per microsecond."""
+    r = degrade.shot_noise_hz * 1e-6
+    return r, r * (degrade.shot_noise_bright_factor - 1.0)
+
+
+# --- vectorized per-chunk effects ------------------------------------------------------
+
+def poisson_events(expected: np.ndarray, pixels: np.ndarray | None, t0: int, t1: int,
+                   width: int, rng: np.random.Generator, polarity: np.ndarray | None = None
+                   ) -> np.ndarray:
+    """Poisson events: pixel i gets ``Poisson(expected[i])`` events at uniform times in
+    [t0, t1); ``pixels`` gives the flat pixel index of each entry of ``expected`` (None:
+    entry i is pixel i). Polarity is fixed per entry when ``polarity`` is given, else
+    ON/OFF with probability 1/2 per event. Returns an EVENT_DTYPE array grouped by pixel
+    (not sorted)."""
+    counts = rng.poisson(expected)
+    n = int(counts.sum())
+    flat = np.arange(expected.size, dtype=np.int64) if pixels is None else pixels
+    idx = np.repeat(flat, counts)
+    span = max(int(t1) - int(t0), 1)
+    out = np.empty(n, EVENT_DTYPE)
+    out["t"] = int(t0) + np.floor(rng.random(n) * span).astype(np.int64)
+    if polarity is None:
+        out["p"] = rng.random(n) < 0.5
+    else:
+        out["p"] = np.repeat(polarity, counts)
+    y, x = np.divmod(idx, width)
+    out["x"], out["y"] = x, y
+    return out
+
+
+def timing_shift_bounds(degrade: DegradeConfig) -> tuple[int, int]:
+    """(smallest, largest) integer shift that :func:`apply_timing` can add."""
+    s = JITTER_TRUNCATE * degrade.jitter_us
+    return int(math.floor(degrade.latency_us - s)), int(math.ceil(degrade.latency_us + s))
+
+
+@njit(cache=True)
+def _shift_times(arr, z, sigma, latency, t_min):
+    use_z = z.shape[0] > 0
+    for i in range(arr.shape[0]):
+        s = latency
+        if use_z:
+            zi = min(max(z[i], -JITTER_TRUNCATE), JITTER_TRUNCATE)
+            s += sigma * zi
+        t = arr[i].t + np.int64(math.floor(s + 0.5))
+        arr[i].t = t if t > t_min else t_min
+
+
+def apply_timing(arr: np.ndarray, degrade: DegradeConfig, rng: np.random.Generator | None,
+                 t_min: int) -> None:
+    """Jitter and latency, in place on the EVENT_DTYPE array ``arr``:
+    ``t <- max(t + round(latency + jitter z), t_min)``, z ~ N(0, 1) truncated at
+    :data:`JITTER_TRUNCATE` (one draw per event, in array order). Leaves ``arr`` unsorted."""
+    if (degrade.jitter_us <= 0 and degrade.latency_us <= 0) or arr.size == 0:
+        return
+    z = rng.standard_normal(arr.size, dtype=np.float32) if degrade.jitter_us > 0 else np.empty(0, np.float32)
+    _shift_times(arr, z, float(degrade.jitter_us), float(degrade.latency_us), np.int64(t_min))
+
+
+def needs_rng(degrade: DegradeConfig) -> bool:
+    """Whether any active effect draws random numbers."""
+    return any(getattr(degrade, k) > 0 for k in
+               ("threshold_sigma", "shot_noise_hz", "leak_hz", "hot_pixel_fraction", "jitter_us"))

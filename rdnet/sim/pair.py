@@ -1,0 +1,154 @@
+"""Simulate events from frames: one sensor (:func:`simulate`) or the undegraded/degraded
+pair from the same frames in one pass (:func:`simulate_pair`), as RDNet trains its
+restoration stage on (degraded, ideal) event pairs of the same scene.
+
+Frames are taken as linear intensity; colour frames become luminance (ITU-R BT.601, as
+:meth:`Frames.grey`). With ``interpolate`` (an :class:`rdnet.sim.interpolate.InterpolateConfig`)
+the frames are first upsampled adaptively (vid2e-style) so the log intensity moves little
+between steps. Everything streams chunk by chunk (:func:`frame_chunks`,
+:func:`stream_events`), so the whole upsampled video is never in memory.
+"""
+from __future__ import annotations
+
+import logging
+from typing import Iterable, Iterator, Sequence
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from rdnet.errors import ValidationError
+from rdnet.events.core import Events, concatenate
+from rdnet.events.recording import Frames
+from rdnet.sim.sensor import Sensor
+from rdnet.sim.settings import DegradeConfig, SensorConfig
+
+log = logging.getLogger(__name__)
+
+#: Default number of simulation steps per chunk.
+DEFAULT_CHUNK = 64
+
+
+def as_frames(frames: Frames | np.ndarray, t_us: np.ndarray | None = None) -> Frames:
+    """``frames`` as validated :class:`Frames` (arrays: (N, H, W[, 3]) float32 linear or
+    uint8 with ``t_us`` (N,) int64 strictly increasing; NaN, negative values, wrong shapes
+    and non-increasing times raise :class:`ValidationError`)."""
+    if isinstance(frames, Frames):
+        if t_us is not None and not np.array_equal(np.asarray(t_us), frames.t_us):
+            raise ValidationError("t_us", "differs from the timestamps of the Frames given")
+        return frames
+    if t_us is None:
+        raise ValidationError("t_us", "timestamps are required with an image array")
+    images = np.asarray(frames)
+    if images.ndim not in (3, 4):
+        raise ValidationError("frames/images", f"expected (N,H,W) or (N,H,W,3), got shape {images.shape}")
+    return Frames(images, np.asarray(t_us), np.zeros(images.shape[0], np.int64))
+
+
+def _grey(images: np.ndarray) -> np.ndarray:
+    """Float32 linear luminance (K, H, W) of a chunk (uint8 / 255; colour -> BT.601 luma)."""
+    return Frames(images, np.arange(images.shape[0], dtype=np.int64), 0).grey()
+
+
+def _upsampled(parts: Iterable[Frames], interpolate, log_eps: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Upsample a stream of Frames chunks, carrying the last frame across chunk borders."""
+    from rdnet.sim.interpolate import upsample
+
+    prev_im = prev_t = None
+    for fr in parts:
+        if len(fr) == 0:
+            continue
+        ims, ts = fr.images, fr.t_us
+        if prev_im is not None:
+            ims = np.concatenate([prev_im, ims])
+            ts = np.concatenate([prev_t, ts])
+        first = True
+        for c_im, c_t in upsample(ims, ts, interpolate, log_eps):
+            if first and prev_im is not None:
+                c_im, c_t = c_im[1:], c_t[1:]
+            first = False
+            if c_t.size:
+                yield c_im, c_t
+        prev_im, prev_t = fr.images[-1:], fr.t_us[-1:]
+
+
+def frame_chunks(frames: Frames | np.ndarray | Iterable[Frames], t_us: np.ndarray | None = None, *,
+                 interpolate=None, log_eps: float = 0.01, chunk: int = DEFAULT_CHUNK
+                 ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Simulation steps in chunks: ``(grey float32 (K, H, W), t_us (K,))`` with K <= ``chunk``
+    (a little more after upsampling), from Frames, an image array with ``t_us``, or an
+    iterable of consecutive Frames chunks (e.g. :func:`rdnet.sim.sources.iter_frames`).
+    ``interpolate``: InterpolateConfig (None or method 'none': frames used as given)."""
+    if chunk < 1:
+        raise ValidationError("chunk", f"must be >= 1, got {chunk}")
+    if isinstance(frames, (Frames, np.ndarray)):
+        parts: Iterable[Frames] = [as_frames(frames, t_us)]
+    else:
+        if t_us is not None:
+            raise ValidationError("t_us", "not used with an iterable of Frames")
+        parts = frames
+    if interpolate is not None and getattr(interpolate, "method", "none") != "none":
+        src: Iterable[tuple[np.ndarray, np.ndarray]] = _upsampled(parts, interpolate, log_eps)
+    else:
+        src = ((fr.images[i:i + chunk], fr.t_us[i:i + chunk])
+               for fr in parts for i in range(0, len(fr), chunk))
+    buf_im: list[np.ndarray] = []
+    buf_t: list[np.ndarray] = []
+    n = 0
+    for im, t in src:
+        buf_im.append(_grey(im))
+        buf_t.append(np.asarray(t, np.int64))
+        n += len(t)
+        if n >= chunk:
+            yield np.concatenate(buf_im), np.concatenate(buf_t)
+            buf_im, buf_t, n = [], [], 0
+    if n:
+        yield np.concatenate(buf_im), np.concatenate(buf_t)
+
+
+def stream_events(chunks: Iterable[tuple[np.ndarray, np.ndarray]], sensors: Sequence[Sensor], *,
+                  progress: bool = False, total: int | None = None) -> Iterator[list[Events]]:
+    """Feed every chunk to every sensor; yield, per chunk and at the end (flush), the list
+    of each sensor's new events (time-sorted, consecutive across yields)."""
+    bar = tqdm(total=total, unit="step", desc="simulate", disable=None if progress else True)
+    try:
+        for images, t in chunks:
+            out = [s.step(images, t) for s in sensors]
+            bar.update(len(t))
+            yield out
+        yield [s.flush() for s in sensors]
+    finally:
+        bar.close()
+
+
+def _run(frames, t_us, sensors_of, *, interpolate, chunk, progress) -> list[Events]:
+    fr = as_frames(frames, t_us)
+    sensors = sensors_of(fr.width, fr.height)
+    chunks = frame_chunks(fr, interpolate=interpolate, log_eps=sensors[0].sensor.log_eps, chunk=chunk)
+    parts: list[list[Events]] = [[] for _ in sensors]
+    for evs in stream_events(chunks, sensors, progress=progress):
+        for acc, ev in zip(parts, evs):
+            acc.append(ev)
+    return [concatenate(p) for p in parts]
+
+
+def simulate(frames: Frames | np.ndarray, t_us: np.ndarray | None = None,
+             sensor: SensorConfig = SensorConfig(), degrade: DegradeConfig | None = None,
+             rng: np.random.Generator | None = None, *, interpolate=None, chunk: int = DEFAULT_CHUNK,
+             progress: bool = False) -> Events:
+    """Events of one simulated sensor (ideal when ``degrade`` is None or all effects are
+    off). ``frames``: Frames or (N, H, W[, 3]) float32 linear / uint8 with ``t_us``.
+    ``rng`` is required for random degradations; same seed -> bit-identical events."""
+    return _run(frames, t_us, lambda w, h: [Sensor(w, h, sensor, degrade, rng)],
+                interpolate=interpolate, chunk=chunk, progress=progress)[0]
+
+
+def simulate_pair(frames: Frames | np.ndarray, t_us: np.ndarray | None = None,
+                  sensor: SensorConfig = SensorConfig(), degrade: DegradeConfig | None = None,
+                  rng: np.random.Generator | None = None, *, interpolate=None,
+                  chunk: int = DEFAULT_CHUNK, progress: bool = False) -> tuple[Events, Events]:
+    """``(undegraded, degraded)`` events of the same frames, simulated in one pass (the
+    frames are read/upsampled once and fed to both sensors chunk by chunk)."""
+    ideal, deg = _run(frames, t_us,
+                      lambda w, h: [Sensor(w, h, sensor, None), Sensor(w, h, sensor, degrade, rng)],
+                      interpolate=interpolate, chunk=chunk, progress=progress)
+    return ideal, deg

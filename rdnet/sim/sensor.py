@@ -1,0 +1,473 @@
+"""Streaming DVS pixel simulator (ideal sensor plus the in-pixel degradations).
+
+Model (Lichtsteiner et al., IEEE JSSC 2008; ESIM, Rebecq et al., CoRL 2018): each pixel
+follows ``L = log(I + log_eps)`` and holds a reference ``ref``. Between two consecutive
+frames at ``t0`` and ``t1`` the (possibly low-passed) log intensity is taken to vary
+linearly, ``S(t) = S0 + (S1 - S0) (t - t0) / (t1 - t0)``; every time ``S`` crosses
+``ref + theta_on`` (``ref - theta_off``) an ON (OFF) event is emitted at the exact crossing
+time of that pixel,
+
+    t_e = t0 + (ref' - S0) / (S1 - S0) (t1 - t0),   ref' = ref +- theta,
+
+rounded to the microsecond, and ``ref`` moves by exactly one threshold. Several events per
+step are allowed. A pixel whose log intensity ramps linearly by k thresholds therefore gets
+exactly k events at the analytic times (a tolerance of :data:`CROSSING_TOL` log units
+absorbs float rounding at the last crossing).
+
+:class:`Sensor` holds the per-pixel state in preallocated arrays (reference, thresholds,
+low-pass state, leak offset, time of the last event, readout period of the last event) and
+consumes frames chunk by chunk (:meth:`Sensor.step`), so arbitrarily long inputs stream in
+bounded memory. The hot path is one fused numba kernel, parallel over rows; its events go
+to per-row buffers, are gathered, joined with the per-chunk noise events of
+:mod:`rdnet.sim.effects`, jittered, and sorted once per chunk (counting sort on time).
+"""
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from rdnet.errors import ValidationError
+from rdnet.events.core import EVENT_DTYPE, Events
+from rdnet.sim import effects
+from rdnet.sim.settings import DegradeConfig, SensorConfig
+
+log = logging.getLogger(__name__)
+
+#: Tolerance (log units) of the crossing test ``S - ref >= theta - tol``.
+CROSSING_TOL = 1e-9
+_NEVER = -(1 << 62)
+_FMAX = 3.0e38
+_NO_ALPHA = np.zeros((1, 1, 1), np.float32)
+
+
+@njit(parallel=True, cache=True)
+def _pixel_kernel(logf, decay, use_lp, use_leak, t_us, t_prev,
+                  s_prev, lp, acc, ref, last_t, last_bin,
+                  thr_on, thr_off, drift, refractory, period,
+                  out_t, out_x, out_p, seg, counts, bad, cap):
+    """Advance every pixel over the K steps of ``logf`` (K, H, W) log intensity.
+
+    Per pixel and step k (dt = t_k - t_{k-1} in us):
+      low-pass (if ``use_lp``): lp += (1 - decay_k) (L_k - lp), decay_k = exp(-2 pi f(I) dt);
+      leak: acc += drift dt; S_k = lp + acc (= L_k when both are off);
+      each crossing of ``ref +- theta`` by the segment S_{k-1} -> S_k: ref moves by one
+      threshold, event time t_{k-1} + (ref - S_{k-1}) / (S_k - S_{k-1}) dt, emitted unless
+      within ``refractory`` of the last event or in the readout period of the last event.
+    Loops: rows in parallel, then steps, then pixels, so each row buffer is step-ordered;
+    ``seg[k, y]`` counts the events of row y in step k and ``counts[y]`` the row total
+    (events are written while the row total < cap). ``bad[y]`` flags NaN/inf input.
+    """
+    K, H, W = logf.shape
+    use_period = period > 0.0
+    for y in prange(H):
+        base = y * cap
+        n = 0
+        isbad = False
+        tp = t_prev
+        for k in range(K):
+            t1 = t_us[k]
+            dt = float(t1 - tp)
+            n_before = n
+            for x in range(W):
+                s1 = float(logf[k, y, x])
+                if not (s1 > -_FMAX and s1 < _FMAX):
+                    isbad = True
+                    s1 = 0.0
+                if use_lp:
+                    lpv = lp[y, x]
+                    lpv += (1.0 - decay[k, y, x]) * (s1 - lpv)
+                    lp[y, x] = lpv
+                    s1 = lpv
+                if use_leak:
+                    a = acc[y, x] + drift[y, x] * dt
+                    acc[y, x] = a
+                    s1 += a
+                s0 = s_prev[y, x]
+                s_prev[y, x] = s1
+                r = ref[y, x]
+                ton = thr_on[y, x]
+                toff = thr_off[y, x]
+                if s1 - r >= ton - CROSSING_TOL:
+                    pol = 1
+                    stp = ton
+                    thr = ton
+                    sgn = 1.0
+                elif r - s1 >= toff - CROSSING_TOL:
+                    pol = 0
+                    stp = -toff
+                    thr = toff
+                    sgn = -1.0
+                else:
+                    continue
+                ds = s1 - s0
+                lt = last_t[y, x]
+                lb = last_bin[y, x]
+                while sgn * (s1 - r) >= thr - CROSSING_TOL:
+                    r += stp
+                    frac = (r - s0) / ds if ds != 0.0 else 1.0
+                    if frac < 0.0:
+                        frac = 0.0
+                    elif frac > 1.0:
+                        frac = 1.0
+                    te = np.int64(math.floor(tp + frac * dt + 0.5))
+                    if te - lt < refractory:
+                        continue
+                    if use_period:
+                        b = np.int64(math.floor(te / period))
+                        if b == lb:
+                            continue
+                        lb = b
+                    lt = te
+                    if n < cap:
+                        out_t[base + n] = te
+                        out_x[base + n] = x
+                        out_p[base + n] = pol
+                    n += 1
+                ref[y, x] = r
+                last_t[y, x] = lt
+                last_bin[y, x] = lb
+            seg[k, y] = n - n_before
+            tp = t1
+        counts[y] = n
+        bad[y] = isbad
+
+
+@njit(parallel=True, cache=True)
+def _linear_terms(lin, dt, lp_coef, lp_floor, shot_a, shot_b, want_lp, expo, want_shot, lam):
+    """Per pixel and step: ``expo = -lp_coef dt (max(I, 0) + lp_floor)`` (exponent of the
+    low-pass decay, exponentiated by the caller), and the shot-noise hazard integral
+    ``lam = sum_k (shot_a + shot_b clip(I_k, 0, 1)) dt_k`` of the chunk."""
+    K, H, W = lin.shape
+    for y in prange(H):
+        if want_shot:
+            for x in range(W):
+                lam[y, x] = 0.0
+        for k in range(K):
+            c = -lp_coef * dt[k]
+            for x in range(W):
+                v = lin[k, y, x]
+                v = v if v > 0.0 else 0.0
+                if want_lp:
+                    expo[k, y, x] = c * (v + lp_floor)
+                if want_shot:
+                    lam[y, x] += (shot_a + shot_b * min(v, 1.0)) * dt[k]
+
+
+@njit(parallel=True, cache=True)
+def _gather_sorted(out_t, out_x, out_p, seg, cap, t_us, t_prev, out):
+    """Write the per-row, step-ordered buffers into ``out`` (EVENT_DTYPE) sorted by time.
+
+    Events of step k lie in [t_{k-1}, t_k]; steps are handled in parallel, each with a
+    stable counting sort on its time offsets (argsort when the step is long compared
+    with its event count). Ties keep (row, pixel) order."""
+    K, H = seg.shape
+    rowoff = np.zeros((K, H), np.int64)
+    stepoff = np.zeros(K + 1, np.int64)
+    for k in range(K):
+        tot = 0
+        for y in range(H):
+            if k > 0:
+                rowoff[k, y] = rowoff[k - 1, y] + seg[k - 1, y]
+            tot += seg[k, y]
+        stepoff[k + 1] = stepoff[k] + tot
+    for k in prange(K):
+        m = stepoff[k + 1] - stepoff[k]
+        if m == 0:
+            continue
+        lo = t_prev if k == 0 else t_us[k - 1]
+        span = t_us[k] - lo + 1
+        o = stepoff[k]
+        if span <= 4 * m + 65536:
+            cnt = np.zeros(span + 1, np.int64)
+            for y in range(H):
+                s = y * cap + rowoff[k, y]
+                for j in range(s, s + seg[k, y]):
+                    cnt[out_t[j] - lo + 1] += 1
+            for i in range(span):
+                cnt[i + 1] += cnt[i]
+            for y in range(H):
+                s = y * cap + rowoff[k, y]
+                for j in range(s, s + seg[k, y]):
+                    q = o + cnt[out_t[j] - lo]
+                    cnt[out_t[j] - lo] += 1
+                    out[q].t = out_t[j]
+                    out[q].x = out_x[j]
+                    out[q].y = y
+                    out[q].p = out_p[j]
+        else:
+            tt = np.empty(m, np.int64)
+            src = np.empty(m, np.int64)
+            ys = np.empty(m, np.int64)
+            i = 0
+            for y in range(H):
+                s = y * cap + rowoff[k, y]
+                for j in range(s, s + seg[k, y]):
+                    tt[i] = out_t[j]
+                    src[i] = j
+                    ys[i] = y
+                    i += 1
+            order = np.argsort(tt, kind="mergesort")
+            for i in range(m):
+                j = src[order[i]]
+                out[o + i].t = out_t[j]
+                out[o + i].x = out_x[j]
+                out[o + i].y = ys[order[i]]
+                out[o + i].p = out_p[j]
+
+
+_SORT_BLOCKS = 8
+
+
+@njit(parallel=True, cache=True)
+def _counting_sort(src, tmin, span, out):
+    """Stable counting sort of the structured events ``src`` by time into ``out``.
+
+    Parallel over a fixed number of contiguous input blocks (per-block histograms, then
+    per-block offsets); a stable sort has a unique result, so the output does not depend
+    on the number of threads."""
+    n = src.shape[0]
+    nb = _SORT_BLOCKS
+    step = (n + nb - 1) // nb
+    hist = np.zeros((nb, span), np.int64)
+    for b in prange(nb):
+        for i in range(b * step, min(n, (b + 1) * step)):
+            hist[b, src[i].t - tmin] += 1
+    # offsets: bins in time order, blocks in input order within a bin
+    total = 0
+    for v in range(span):
+        for b in range(nb):
+            c = hist[b, v]
+            hist[b, v] = total
+            total += c
+    for b in prange(nb):
+        for i in range(b * step, min(n, (b + 1) * step)):
+            v = src[i].t - tmin
+            j = hist[b, v]
+            hist[b, v] = j + 1
+            out[j] = src[i]
+
+
+def sort_events(arr: np.ndarray) -> np.ndarray:
+    """``arr`` (EVENT_DTYPE) stably sorted by time, as a new array (counting sort when the
+    time span is small compared with the count, else argsort)."""
+    n = arr.shape[0]
+    if n == 0:
+        return arr.copy()
+    t = arr["t"]
+    tmin, tmax = int(t.min()), int(t.max())
+    span = tmax - tmin + 1
+    if span <= 2 * n + (1 << 16):
+        out = np.empty(n, EVENT_DTYPE)
+        _counting_sort(arr, tmin, span, out)
+        return out
+    return arr[np.argsort(t, kind="stable")]
+
+
+class Sensor:
+    """Per-pixel state of one simulated event camera (ideal when ``degrade`` is None or
+    all effects are off); consume frames with :meth:`step`, then :meth:`flush`.
+
+    ``rng`` (numpy Generator) is required when a random effect is on; it draws the
+    per-sequence pixel parameters here and the noise/jitter of every chunk. The same seed
+    and the same chunking give bit-identical events.
+    """
+
+    def __init__(self, width: int, height: int, sensor: SensorConfig = SensorConfig(),
+                 degrade: DegradeConfig | None = None, rng: np.random.Generator | None = None):
+        self.width, self.height = int(width), int(height)
+        if self.width <= 0 or self.height <= 0:
+            raise ValidationError("width/height", f"sensor size must be positive, got {width}x{height}")
+        self.sensor = sensor
+        self.degrade = degrade = DegradeConfig() if degrade is None else degrade
+        if effects.needs_rng(degrade) and not isinstance(rng, np.random.Generator):
+            raise ValidationError("rng", "a numpy.random.Generator is required for the random degradations "
+                                  f"{', '.join(degrade.active())}")
+        self.rng = rng
+        H, W = self.height, self.width
+        self.thr_on, self.thr_off = effects.pixel_thresholds(H, W, sensor, degrade, rng)
+        rates = effects.leak_rates(H, W, degrade, rng)
+        self.leak_rate_hz = rates
+        self.drift = rates * self.thr_on * 1e-6            # log units per microsecond
+        self._phase = effects.leak_phase(H, W, degrade, rng)
+        self.hot_idx, self.hot_pol = effects.hot_pixels(H, W, degrade, rng)
+        self._lp_coef = effects.lowpass_coef(degrade)
+        self._shot_a, self._shot_b = effects.shot_rate_coefs(degrade)
+        self._shift_lo, _ = effects.timing_shift_bounds(degrade)
+        self._timing = degrade.jitter_us > 0 or degrade.latency_us > 0
+        self._use_leak = bool(np.any(self.drift != 0))
+        # state
+        self.s_prev = np.zeros((H, W))
+        self.lp = np.zeros((H, W))
+        self.acc = np.zeros((H, W))
+        self.ref = np.zeros((H, W))
+        self.last_t = np.full((H, W), _NEVER, np.int64)
+        self.last_bin = np.full((H, W), _NEVER, np.int64)
+        self.shot_lam = np.zeros((H, W))
+        self._state = (self.s_prev, self.lp, self.acc, self.ref, self.last_t, self.last_bin)
+        self._backup = tuple(np.empty_like(a) for a in self._state)
+        self._counts = np.zeros(H, np.int64)
+        self._bad = np.zeros(H, np.bool_)
+        self._cap = 0
+        self._bufs: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.t_prev: int | None = None
+        self.t_start: int | None = None
+        self._held = np.empty(0, EVENT_DTYPE)
+        self.n_events = 0
+
+    # --- buffers ------------------------------------------------------------------------
+    def _ensure_cap(self, cap: int) -> None:
+        if cap > self._cap:
+            n = cap * self.height
+            self._bufs = (np.empty(n, np.int64), np.empty(n, np.uint16), np.empty(n, np.uint8))
+            self._cap = cap
+
+    # --- input checks -------------------------------------------------------------------
+    def _prepare(self, frames, t_us, is_log: bool) -> tuple[np.ndarray, np.ndarray]:
+        fr = np.asarray(frames)
+        if fr.ndim == 2:
+            fr = fr[None]
+        if fr.ndim != 3 or fr.shape[1:] != (self.height, self.width):
+            raise ValidationError("frames", f"expected (K, {self.height}, {self.width}), got shape {fr.shape}")
+        if fr.dtype == np.uint8 and not is_log:
+            fr = fr.astype(np.float32) * np.float32(1.0 / 255.0)
+        elif fr.dtype not in (np.float32, np.float64):
+            if not np.issubdtype(fr.dtype, np.number) or np.issubdtype(fr.dtype, np.complexfloating):
+                raise ValidationError("frames", f"expected float32 intensity, got dtype {fr.dtype}")
+            fr = fr.astype(np.float64 if is_log else np.float32)
+        fr = np.ascontiguousarray(fr)
+        t = np.asarray(t_us)
+        if t.ndim == 0:
+            t = t[None]
+        if not np.issubdtype(t.dtype, np.integer):
+            if np.issubdtype(t.dtype, np.floating) and np.all(np.isfinite(t)) and np.all(t == np.round(t)):
+                t = t.astype(np.int64)
+            else:
+                raise ValidationError("t_us", f"timestamps must be integer microseconds, got {t.dtype}")
+        t = np.ascontiguousarray(t, dtype=np.int64)
+        if t.shape != (fr.shape[0],):
+            raise ValidationError("t_us", f"expected {fr.shape[0]} timestamps, got shape {t.shape}")
+        prev = [] if self.t_prev is None else [self.t_prev]
+        tt = np.concatenate([np.asarray(prev, np.int64), t])
+        if tt.size > 1 and np.any(np.diff(tt) <= 0):
+            i = int(np.flatnonzero(np.diff(tt) <= 0)[0])
+            raise ValidationError("t_us", f"timestamps must increase strictly ({int(tt[i])} -> {int(tt[i + 1])} us)")
+        return fr, t
+
+    def _init_state(self, frame: np.ndarray, t0: int, is_log: bool) -> None:
+        v = frame.astype(np.float64)
+        if is_log:
+            if not np.isfinite(v).all():
+                raise ValidationError("frames", "log frame contains NaN or infinite values")
+            L = v
+        else:
+            if not np.isfinite(v).all():
+                raise ValidationError("frames", "frame contains NaN or infinite values")
+            if v.min() < 0:
+                raise ValidationError("frames", f"negative intensity {float(v.min())}")
+            L = np.log(v + self.sensor.log_eps)
+        self.s_prev[...] = L
+        self.lp[...] = L
+        self.acc[...] = 0.0
+        self.ref[...] = L - self._phase * self.thr_on
+        self.t_prev = self.t_start = int(t0)
+
+    # --- simulation ---------------------------------------------------------------------
+    def _chunk_terms(self, fr: np.ndarray, t: np.ndarray, is_log: bool):
+        """Log intensity (float32 for linear input), ``e = exp(-2 pi f(I) dt)`` of the
+        low-pass (the kernel uses alpha = 1 - e) and the shot-noise hazard of the chunk."""
+        dt = np.diff(np.concatenate([[self.t_prev], t])).astype(np.float64)
+        need_lin = self._lp_coef > 0 or self._shot_a > 0
+        if is_log:
+            logf = fr
+            lin = (np.exp(fr) - self.sensor.log_eps).astype(np.float32) if need_lin else None
+        else:
+            mn = fr.min() if fr.size else 0.0
+            if not mn >= 0:
+                raise ValidationError("frames", "frames contain NaN or negative intensity"
+                                      + ("" if mn != mn else f" ({float(mn)})"))
+            lin = fr
+            logf = np.add(fr, fr.dtype.type(self.sensor.log_eps))
+            np.log(logf, out=logf)
+        decay = _NO_ALPHA
+        if need_lin:
+            if self._lp_coef > 0:
+                decay = np.empty(lin.shape, np.float32)
+            _linear_terms(lin, dt, self._lp_coef, effects.CUTOFF_FLOOR, self._shot_a, self._shot_b,
+                          self._lp_coef > 0, decay, self._shot_a > 0, self.shot_lam)
+            if self._lp_coef > 0:
+                np.exp(decay, out=decay)
+        return logf, decay
+
+    def step(self, frames: np.ndarray, t_us: np.ndarray, *, log: bool = False) -> Events:
+        """Consume frames (K, H, W) at times ``t_us`` (K,) int64 us, after all frames seen
+        so far; ``frames`` are linear intensity (float32 in [0, 1] or uint8), or log
+        intensity when ``log=True``. The very first frame only sets the state. Returns the
+        events that are final (time-sorted; with jitter, the events within the jitter
+        range of the chunk end are held back until the next call or :meth:`flush`)."""
+        fr, t = self._prepare(frames, t_us, log)
+        if t.size == 0:
+            return Events.empty(self.width, self.height)
+        if self.t_prev is None:
+            self._init_state(fr[0], t[0], log)
+            fr, t = fr[1:], t[1:]
+            if t.size == 0:
+                return Events.empty(self.width, self.height)
+        t0, t1 = int(self.t_prev), int(t[-1])
+        logf, decay = self._chunk_terms(fr, t, log)
+        for src, dst in zip(self._state, self._backup):
+            np.copyto(dst, src)
+        if self._cap == 0:
+            # first guess: up to 1/2 event per pixel and step; grown on overflow
+            self._ensure_cap(max(256, self.width * t.size // 2))
+        seg = np.zeros((t.size, self.height), np.int64)
+        while True:
+            out_t, out_x, out_p = self._bufs
+            _pixel_kernel(logf, decay, self._lp_coef > 0, self._use_leak, t, t0,
+                          self.s_prev, self.lp, self.acc, self.ref, self.last_t, self.last_bin,
+                          self.thr_on, self.thr_off, self.drift,
+                          float(self.degrade.refractory_us), float(self.degrade.sample_period_us),
+                          out_t, out_x, out_p, seg, self._counts, self._bad, self._cap)
+            bad = self._bad.any()
+            need = int(self._counts.max())
+            if bad or need > self._cap:
+                for src, dst in zip(self._backup, self._state):
+                    np.copyto(dst, src)
+                if bad:
+                    raise ValidationError("frames", "frames contain NaN or infinite values")
+                self._ensure_cap(int(need * 1.25) + 16)
+                continue
+            break
+        self.t_prev = t1
+        arr = np.empty(int(self._counts.sum()), EVENT_DTYPE)
+        if arr.size:
+            _gather_sorted(out_t, out_x, out_p, seg, self._cap, t, t0, arr)
+        parts = [arr]
+        d, rng = self.degrade, self.rng
+        if self._shot_a > 0:
+            parts.append(effects.poisson_events(self.shot_lam.ravel(), None, t0, t1, self.width, rng))
+        if self.hot_idx.size:
+            lam = np.full(self.hot_idx.size, d.hot_pixel_hz * (t1 - t0) * 1e-6)
+            parts.append(effects.poisson_events(lam, self.hot_idx, t0, t1, self.width, rng, self.hot_pol))
+        if self._timing:
+            parts = [self._held] + parts
+        if len(parts) > 1:
+            arr = np.concatenate(parts)
+            if self._timing:
+                effects.apply_timing(arr[self._held.size:], d, rng, self.t_start)
+            arr = sort_events(arr)
+        if self._timing:
+            # events of later chunks have t >= t1 + shift_lo: everything before is final
+            cut = int(np.searchsorted(arr["t"], t1 + self._shift_lo, "left"))
+            self._held = arr[cut:].copy()
+            arr = arr[:cut]
+        self.n_events += arr.shape[0]
+        return Events(arr, self.width, self.height, validate=False)
+
+    def flush(self) -> Events:
+        """Events held back for the jitter re-sort (call once at the end)."""
+        arr, self._held = self._held, np.empty(0, EVENT_DTYPE)
+        self.n_events += arr.shape[0]
+        return Events(arr, self.width, self.height, validate=False)

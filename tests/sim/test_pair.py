@@ -1,0 +1,123 @@
+"""Paired simulation, frame inputs, and randomized degradation."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from rdnet.errors import ConfigError, ValidationError
+from rdnet.events.recording import Frames
+from rdnet.sim.pair import frame_chunks, simulate, simulate_pair
+from rdnet.sim.randomize import degradation_level, degrade_factors, draw_degrade
+from rdnet.sim.settings import EFFECT_KEYS, DegradeConfig, RandomizeConfig, SensorConfig
+
+DEG = DegradeConfig(threshold_sigma=0.1, onoff_ratio=1.3, cutoff_hz=300, sample_period_us=200,
+                    refractory_us=100, shot_noise_hz=5, leak_hz=1, hot_pixel_fraction=0.01,
+                    hot_pixel_hz=200, jitter_us=300, latency_us=50)
+
+
+def moving_bar(n=24, h=16, w=20, color=False):
+    t = np.arange(n, dtype=np.int64) * 1000
+    x = np.arange(w)[None, None, :]
+    im = 0.1 + 0.8 / (1 + np.exp(-(x - 3 - 0.5 * np.arange(n)[:, None, None])))
+    im = np.broadcast_to(im, (n, h, w)).astype(np.float32)
+    if color:
+        im = np.stack([im, 0.5 * im, 0.25 * im], axis=-1)
+    return np.ascontiguousarray(im), t
+
+
+def test_pair_matches_single_simulations_and_is_deterministic():
+    im, t = moving_bar()
+    ideal, deg = simulate_pair(im, t, SensorConfig(), DEG, np.random.default_rng(5), chunk=5)
+    assert len(ideal) > 100
+    assert np.array_equal(ideal.array, simulate(im, t).array)
+    assert np.array_equal(deg.array, simulate(im, t, SensorConfig(), DEG, np.random.default_rng(5), chunk=5).array)
+    again = simulate_pair(im, t, SensorConfig(), DEG, np.random.default_rng(5), chunk=5)
+    assert again[1].array.tobytes() == deg.array.tobytes()
+    other = simulate_pair(im, t, SensorConfig(), DEG, np.random.default_rng(6), chunk=5)
+    assert other[1].array.tobytes() != deg.array.tobytes()
+    assert np.array_equal(other[0].array, ideal.array)
+
+
+def test_no_degradation_is_ideal():
+    im, t = moving_bar()
+    a, b = simulate_pair(im, t, SensorConfig(), DegradeConfig(), None)
+    assert np.array_equal(a.array, b.array)
+
+
+def test_colour_and_uint8_frames_become_luminance():
+    im, t = moving_bar(color=True)
+    grey = Frames(im, t, 0).grey()
+    assert np.array_equal(simulate(Frames(im, t, 0)).array, simulate(grey, t).array)
+    u8 = (im * 255).round().astype(np.uint8)
+    assert np.array_equal(simulate(u8, t).array, simulate(u8.astype(np.float32) / 255, t).array)
+
+
+def test_bad_input():
+    im, t = moving_bar()
+    bad = im.copy()
+    bad[3, 2, 1] = np.nan
+    with pytest.raises(ValidationError):
+        simulate(bad, t)
+    bad[3, 2, 1] = -1
+    with pytest.raises(ValidationError):
+        simulate(bad, t)
+    with pytest.raises(ValidationError):
+        simulate(im[0], t[:1])                  # (H, W): not a frame stack
+    with pytest.raises(ValidationError):
+        simulate(im, t[::-1])
+    with pytest.raises(ValidationError):
+        simulate(im, t[:-1])
+    with pytest.raises(ValidationError):
+        simulate(im, None)
+
+
+def test_frame_chunks_stream_and_interpolation():
+    from rdnet.sim.interpolate import InterpolateConfig
+    im, t = moving_bar(n=12)
+    parts = [Frames(im[i:i + 5], t[i:i + 5], 0) for i in range(0, 12, 5)]
+    got = list(frame_chunks(iter(parts), chunk=4))
+    assert np.array_equal(np.concatenate([c[1] for c in got]), t)
+    assert np.array_equal(np.concatenate([c[0] for c in got]), im)
+    cfg = InterpolateConfig(method="linear", max_log_step=0.02, max_upsample=8)
+    up = list(frame_chunks(iter(parts), interpolate=cfg, chunk=16))
+    tt = np.concatenate([c[1] for c in up])
+    assert np.all(np.diff(tt) > 0) and set(t) <= set(tt) and tt.size > t.size
+    assert simulate(im, t, interpolate=InterpolateConfig(method="none")).array.tobytes() == \
+        simulate(im, t).array.tobytes()
+
+
+def _draws(split, n=200, base=DEG, cfg=RandomizeConfig()):
+    rng = np.random.default_rng(0)
+    return [draw_degrade(base, cfg, split, rng) for _ in range(n)]
+
+
+def test_train_and_test_degradations_are_disjoint_for_every_key():
+    train, test = _draws("train"), _draws("test")
+    for k in DEG.active():
+        a = np.array([getattr(d, k) for d in train])
+        b = np.array([getattr(d, k) for d in test])
+        assert a.max() < b.min(), k
+        assert np.unique(a).size > 100               # drawn per sequence
+    lv_train = [degradation_level(d, DEG) for d in train]
+    lv_test = [degradation_level(d, DEG) for d in test]
+    assert max(lv_train) < min(lv_test)
+    assert degradation_level(DEG, DEG) == pytest.approx(1.0)
+    assert degradation_level(DegradeConfig(), DEG) == 0.0
+
+
+def test_randomize_details():
+    base = DegradeConfig(shot_noise_hz=2.0, onoff_ratio=2.0)
+    d = draw_degrade(base, RandomizeConfig(), "test", np.random.default_rng(1))
+    assert d.active() == ["onoff_ratio", "shot_noise_hz"]           # off stays off
+    f = degrade_factors(d, base)
+    assert 1.0 <= f["onoff_ratio"] <= 1.5 and 1.0 <= f["shot_noise_hz"] <= 1.5
+    only = draw_degrade(base, RandomizeConfig(keys=("shot_noise_hz",)), "train", np.random.default_rng(1))
+    assert only.onoff_ratio == 2.0 and only.shot_noise_hz < 2.0
+    assert draw_degrade(base, RandomizeConfig(enabled=False, train_scale=(1, 1), test_scale=(1, 1)),
+                        "train", np.random.default_rng(1)) == base
+    with pytest.raises(ConfigError):
+        draw_degrade(base, RandomizeConfig(), "val", np.random.default_rng(1))
+    capped = draw_degrade(dataclasses.replace(base, hot_pixel_fraction=0.9, hot_pixel_hz=1.0),
+                          RandomizeConfig(), "test", np.random.default_rng(1))
+    assert capped.hot_pixel_fraction <= 1.0
+    assert set(EFFECT_KEYS) >= set(DEG.active())
