@@ -1,0 +1,206 @@
+"""Run a trained network over a pairs file (full frames, in batches) and score it.
+
+Methods (:data:`METHODS`, the names of the study rows):
+
+* ``blurry`` -- no network: the blurry input itself (the lower reference);
+* ``deblur`` / ``deblurnet_matched`` -- a DeblurNet checkpoint fed the ``events`` voxels
+  (undegraded or degraded);
+* ``image_only`` -- the image-only baseline (no events);
+* ``rdnet`` -- stage 1 then stage 2 on the ``events`` voxels (degraded in the paper);
+  also scores the restored voxels;
+* ``restore`` -- a stage-1 checkpoint alone: restoration metrics only.
+
+``voxel_transform(voxels, index) -> voxels`` (optional) replaces the input voxels of a
+batch before the network sees them: ``voxels`` (n, B, H, W) float32 numpy, ``index``
+(n,) int64 rows of the pairs file; it must return an array of the same shape (used for
+the event-denoising baselines, e.g. STCF/GEF-filtered events).
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Callable, Iterator, Sequence
+
+import numpy as np
+import torch
+
+from rdnet.errors import ConfigError
+from rdnet.eval import metrics as M
+from rdnet.train.data import EVENT_KINDS, read_pairs_info
+
+log = logging.getLogger(__name__)
+
+#: method -> network kind stored in its checkpoint (None: no network).
+METHODS = {"blurry": None, "deblur": "deblur", "deblurnet_matched": "deblurnet_matched",
+           "image_only": "image_only", "rdnet": "rdnet", "restore": "restore"}
+
+VoxelTransform = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def _device(name: str | torch.device) -> torch.device:
+    from rdnet.train.loop import resolve_device
+    return name if isinstance(name, torch.device) else resolve_device(str(name))
+
+
+def load_method(kind: str, checkpoint: str | Path | None, pairs_path: str | Path,
+                device: str | torch.device = "cpu"):
+    """The network of ``checkpoint`` for method ``kind``, checked against the pairs
+    file (kind, voxel bins, image channels); None for ``blurry``."""
+    if kind not in METHODS:
+        raise ConfigError("method", f"unknown method {kind!r}; known: {', '.join(METHODS)}")
+    if METHODS[kind] is None:
+        if checkpoint is not None:
+            raise ConfigError("checkpoint", f"method {kind!r} takes no checkpoint")
+        return None
+    if checkpoint is None:
+        raise ConfigError("checkpoint", f"method {kind!r} needs a checkpoint")
+    from rdnet.train.checkpoint import load_model
+    info = read_pairs_info(pairs_path)
+    return load_model(checkpoint, expected_kind=METHODS[kind], device=_device(device),
+                      bins=info.bins, image_channels=info.channels)
+
+
+def iter_predictions(kind: str, model, pairs_path: str | Path, events: str = "degraded", *,
+                     voxel_transform: VoxelTransform | None = None, batch_size: int = 4,
+                     device: str | torch.device = "cpu", indices: Sequence[int] | None = None,
+                     progress: bool = False) -> Iterator[dict]:
+    """Batches of predictions: dicts of numpy arrays ``index``, ``level``, ``blurry``,
+    ``sharp`` (target), ``voxel_undegraded``, ``voxel_degraded``, ``voxel`` (the input
+    events after ``voxel_transform``), ``pred`` (predicted sharp image; absent for
+    ``restore``) and ``restored`` (restored voxels; rdnet and restore)."""
+    import h5py
+    from tqdm.auto import tqdm
+
+    if kind not in METHODS:
+        raise ConfigError("method", f"unknown method {kind!r}; known: {', '.join(METHODS)}")
+    if events not in EVENT_KINDS:
+        raise ConfigError("events", f"must be one of {list(EVENT_KINDS)}, got {events!r}")
+    if batch_size < 1:
+        raise ConfigError("eval.batch_size", f"must be >= 1, got {batch_size}")
+    info = read_pairs_info(pairs_path)
+    rows = np.arange(info.n) if indices is None else np.asarray(indices, np.int64)
+    if rows.size and (rows.min() < 0 or rows.max() >= info.n):
+        raise ConfigError("indices", f"sample indices must lie in [0, {info.n})")
+    dev = _device(device)
+    if model is not None:
+        model.eval().to(dev)
+    bar = tqdm(total=int(rows.size), desc=f"predict {kind}", unit="sample", disable=(not progress) or None)
+    with h5py.File(pairs_path, "r") as f, torch.inference_mode():
+        for s in range(0, rows.size, batch_size):
+            idx = rows[s:s + batch_size]
+            order = np.argsort(idx, kind="stable")          # h5py wants increasing indices
+            uniq, inv = np.unique(idx[order], return_inverse=True)
+            def read(name):
+                a = np.asarray(f[name][uniq.tolist()])
+                out = np.empty((idx.size,) + a.shape[1:], a.dtype)
+                out[order] = a[inv]
+                return out
+            b = {"index": idx.copy(), "level": read("level").astype(np.float64)}
+            for name in ("blurry", "sharp", "voxel_undegraded", "voxel_degraded"):
+                b[name] = read(name).astype(np.float32)
+            vox = b[f"voxel_{events}"]
+            if voxel_transform is not None:
+                t = np.asarray(voxel_transform(vox.copy(), idx.copy()), np.float32)
+                if t.shape != vox.shape:
+                    raise ValueError(f"voxel_transform returned shape {t.shape}, expected {vox.shape}")
+                vox = t
+            b["voxel"] = vox
+            if kind == "blurry":
+                b["pred"] = b["blurry"]
+            else:
+                img = torch.from_numpy(b["blurry"]).to(dev)
+                v = torch.from_numpy(vox).to(dev)
+                if kind == "rdnet":
+                    restored, pred = model(img, v)
+                    b["restored"] = restored.float().cpu().numpy()
+                    b["pred"] = pred.float().cpu().numpy()
+                elif kind == "restore":
+                    b["restored"] = model(img, v).float().cpu().numpy()
+                elif kind == "image_only":
+                    b["pred"] = model(img, None).float().cpu().numpy()
+                else:
+                    b["pred"] = model(img, v).float().cpu().numpy()
+            bar.update(idx.size)
+            yield b
+    bar.close()
+
+
+def predict(kind: str, checkpoint: str | Path | None, pairs_path: str | Path, events: str = "degraded",
+            *, indices: Sequence[int] | None = None, voxel_transform: VoxelTransform | None = None,
+            batch_size: int = 4, device: str | torch.device = "cpu", progress: bool = False) -> dict:
+    """All predictions of method ``kind`` for the rows ``indices`` (all rows by default),
+    concatenated into arrays (see :func:`iter_predictions`). For figures and small
+    sets; :func:`evaluate_row` streams instead."""
+    model = load_method(kind, checkpoint, pairs_path, device)
+    parts = list(iter_predictions(kind, model, pairs_path, events, voxel_transform=voxel_transform,
+                                  batch_size=batch_size, device=device, indices=indices,
+                                  progress=progress))
+    if not parts:
+        return {}
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+def _read_degrade(pairs_path) -> dict[str, np.ndarray]:
+    import h5py
+    with h5py.File(pairs_path, "r") as f:
+        if "degrade" not in f:
+            return {}
+        return {k: np.asarray(f["degrade"][k], np.float64) for k in f["degrade"]}
+
+
+def evaluate_row(kind: str, checkpoint: str | Path | None, pairs_path: str | Path,
+                 events: str = "degraded", voxel_transform: VoxelTransform | None = None, *,
+                 batch_size: int = 4, device: str | torch.device = "auto", level_bins: int = 5,
+                 progress: bool = False) -> dict:
+    """Score method ``kind`` (``checkpoint`` None for ``blurry``) on every row of the pairs
+    file. Returns a JSON-able dict:
+
+    ``method``, ``events``, ``checkpoint``, ``n``; ``psnr``, ``ssim`` (means of the
+    per-image values of :mod:`rdnet.eval.metrics`; absent for ``restore``);
+    ``by_level``: ``[{level_bin, level_lo, level_hi, n, psnr, ssim, ...}]`` over
+    ``level_bins`` equal-width bins of ``/level`` (non-empty bins only);
+    ``by_degradation``: the same grouped by :func:`~rdnet.eval.metrics.dominant_degradation`
+    of ``/degrade`` (when present); ``per_sample``: ``index``, ``level`` and every
+    per-sample metric; for rdnet/restore ``restoration`` (restored vs undegraded voxels)
+    and ``restoration_input`` (the input voxels vs undegraded: no restoration).
+    """
+    dev = _device(device)
+    model = load_method(kind, checkpoint, pairs_path, dev)
+    per: dict[str, list] = {}
+    rest_in: dict[str, list] = {}
+    for b in iter_predictions(kind, model, pairs_path, events, voxel_transform=voxel_transform,
+                              batch_size=batch_size, device=dev, progress=progress):
+        per.setdefault("index", []).append(b["index"])
+        per.setdefault("level", []).append(b["level"])
+        if "pred" in b:
+            for k, v in M.image_metrics_per_sample(b["pred"], b["sharp"]).items():
+                per.setdefault(k, []).append(v)
+        if "restored" in b:
+            for k, v in M.restoration_per_sample(b["restored"], b["voxel_undegraded"],
+                                                 b["voxel_degraded"]).items():
+                per.setdefault(k, []).append(v)
+            for k, v in M.restoration_per_sample(b["voxel"], b["voxel_undegraded"],
+                                                 b["voxel_degraded"]).items():
+                rest_in.setdefault(k, []).append(v)
+    per_np = {k: np.concatenate(v) for k, v in per.items()}
+    metric_keys = [k for k in per_np if k not in ("index", "level")]
+    values = {k: per_np[k] for k in metric_keys}
+    out: dict = {"method": kind, "events": None if kind in ("blurry", "image_only") else events,
+                 "checkpoint": None if checkpoint is None else str(checkpoint),
+                 "n": int(per_np["index"].size)}
+    if "psnr" in values:
+        out["psnr"] = float(np.mean(values["psnr"]))
+        out["ssim"] = float(np.mean(values["ssim"]))
+    if "voxel_l1" in values:
+        out["restoration"] = {k: float(np.mean(values[k])) for k in
+                              ("voxel_l1", "voxel_psnr", "voxel_l1_all")}
+        out["restoration_input"] = {k: float(np.mean(np.concatenate(rest_in[k]))) for k in
+                                    ("voxel_l1", "voxel_psnr", "voxel_l1_all")}
+    main = {k: values[k] for k in ("psnr", "ssim", "voxel_l1", "voxel_psnr") if k in values}
+    out["by_level"] = M.by_level(main, per_np["level"], bins=level_bins)
+    degrade = _read_degrade(pairs_path)
+    if degrade:
+        labels = M.dominant_degradation({k: v[per_np["index"]] for k, v in degrade.items()})
+        out["by_degradation"] = M.group_means(main, labels)
+    out["per_sample"] = {k: v.tolist() for k, v in per_np.items()}
+    return out

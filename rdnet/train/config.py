@@ -1,0 +1,112 @@
+"""``train`` and ``model`` sections of params.yaml.
+
+Defaults follow the paper (Sec. 4.1): Adam, learning rate 2e-4 decayed with a cosine
+schedule to 1e-7, loss weights alpha = beta = 0.5.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal, Optional
+
+from rdnet.config import positive
+from rdnet.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """How a network is optimised (one run of :func:`rdnet.train.loop.train`).
+
+    ``iterations``: optimiser steps; ``batch_size``: samples per step over all processes
+    (divisible by the number of processes); ``crop``: square training crop in pixels
+    (None = full frames); ``augment``: random flips.
+    ``lr``/``lr_min``: Adam learning rate, cosine-annealed to ``lr_min`` over
+    ``iterations``; ``weight_decay``: Adam L2 weight decay; ``grad_clip``: max gradient
+    norm (0 = off).
+    ``alpha``: weight of the masked voxel L1 term (stage 1); ``beta``: weight of the
+    feature term L1(F(E_r) - F(E_u)) (stage 2); ``stage2_alpha``: weight of the masked
+    voxel L1 term added in stage 2 (0 = the paper: stage 2 trains on L_d plus the
+    feature term only); ``empty_weight``: weight of the L1 on voxels where neither
+    E_u nor E_d has events (0 = the paper's mask).
+    ``finetune_restore``: stage 2 also updates the stage-1 weights, at
+    ``lr * restore_lr_scale``; false freezes them.
+    ``seed``: model init, data order, crops; ``device``: cpu, cuda or auto (cuda when
+    available); ``num_workers``: DataLoader workers; ``threads``: torch intra-op CPU
+    threads of the process (0 = torch's default; a bit-identical resume needs the same
+    count as the interrupted run); ``log_every``/``ckpt_every``: steps between metric
+    logs / checkpoints (out_dir/last.pt); ``dvclive``: log with DVCLive (else only the
+    Python log).
+    """
+
+    iterations: int = 200000
+    batch_size: int = 8
+    crop: Optional[int] = 256
+    augment: bool = True
+    lr: float = 2e-4
+    lr_min: float = 1e-7
+    weight_decay: float = 0.0
+    grad_clip: float = 0.0
+    alpha: float = 0.5
+    beta: float = 0.5
+    stage2_alpha: float = 0.0
+    empty_weight: float = 0.0
+    finetune_restore: bool = True
+    restore_lr_scale: float = 1.0
+    seed: int = 0
+    device: Literal["cpu", "cuda", "auto"] = "auto"
+    num_workers: int = 0
+    threads: int = 0
+    log_every: int = 100
+    ckpt_every: int = 1000
+    dvclive: bool = True
+
+    def __post_init__(self):
+        for key in ("iterations", "batch_size", "log_every", "ckpt_every"):
+            positive(f"train.{key}", getattr(self, key), allow_zero=False)
+        if self.crop is not None:
+            positive("train.crop", self.crop, allow_zero=False)
+        positive("train.lr", self.lr, allow_zero=False)
+        positive("train.lr_min", self.lr_min)
+        if self.lr_min > self.lr:
+            raise ConfigError("train.lr_min", f"{self.lr_min} is larger than train.lr = {self.lr}")
+        for key in ("weight_decay", "grad_clip", "alpha", "beta", "stage2_alpha", "empty_weight",
+                    "restore_lr_scale", "num_workers", "threads", "seed"):
+            positive(f"train.{key}", getattr(self, key))
+        if self.device not in ("cpu", "cuda", "auto"):
+            raise ConfigError("train.device", f"must be cpu, cuda or auto, got {self.device!r}")
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Network size: ``size`` picks a preset of :func:`rdnet.nn.models.build_model`
+    (tiny/small for tests and quick runs, paper = 7.86 M parameters over both stages);
+    the other keys, when set, override the preset's value for every stage network."""
+
+    size: Literal["tiny", "small", "paper"] = "paper"
+    width: Optional[int] = None
+    enc_depths: Optional[tuple[int, ...]] = None
+    middle_depth: Optional[int] = None
+    dec_depths: Optional[tuple[int, ...]] = None
+
+    def __post_init__(self):
+        if self.size not in ("tiny", "small", "paper"):
+            raise ConfigError("model.size", f"must be tiny, small or paper, got {self.size!r}")
+        if self.width is not None:
+            positive("model.width", self.width, allow_zero=False)
+        if self.middle_depth is not None:
+            positive("model.middle_depth", self.middle_depth)
+        for key in ("enc_depths", "dec_depths"):
+            v = getattr(self, key)
+            if v is not None and any(d < 0 for d in v):
+                raise ConfigError(f"model.{key}", f"depths must be >= 0, got {list(v)}")
+        if (self.enc_depths is not None and self.dec_depths is not None
+                and len(self.enc_depths) != len(self.dec_depths)):
+            raise ConfigError("model.dec_depths", "must have as many levels as model.enc_depths")
+
+    def overrides(self) -> dict:
+        """The keyword overrides passed to ``build_model`` (the keys that are set)."""
+        out = {}
+        for key in ("width", "enc_depths", "middle_depth", "dec_depths"):
+            v = getattr(self, key)
+            if v is not None:
+                out[key] = list(v) if isinstance(v, tuple) else v
+        return out

@@ -1,0 +1,208 @@
+"""Learning samples from a pairs file (``data/pairs/{split}.h5``, layout in DATA.md).
+
+:class:`PairsDataset` reads one row lazily: the HDF5 file is opened on first access in
+the process that reads (each DataLoader worker opens its own handle; nothing is opened
+and kept in ``__init__``, which only checks the layout). Only the crop window is read.
+
+Randomness is explicit and stateless: the crop window and flips of a draw are a pure
+function of ``(seed, epoch, index)`` (``numpy.random.default_rng([seed, epoch, index])``),
+and :class:`StepSampler` derives which rows make up training step ``s`` from
+``(seed, s)`` alone. A run resumed at step ``s`` therefore sees exactly the batches an
+uninterrupted run would have seen, whatever the number of workers or processes.
+
+Augmentation (``augment=True``): a random horizontal flip and a random vertical flip,
+applied identically to the blurry and sharp images and to both voxel grids. A spatial
+flip of the voxel grid keeps the polarity and the bin order: mirroring the scene mirrors
+where brightness changes happen, not their sign or time (a time reversal would swap the
+bins *and* negate the polarities; it is not used).
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset, Sampler
+
+from rdnet.errors import ConfigError, FormatError
+
+#: datasets every pairs file must hold: name -> number of dimensions.
+REQUIRED = {"blurry": 4, "sharp": 4, "voxel_undegraded": 4, "voxel_degraded": 4, "level": 1}
+EVENT_KINDS = ("undegraded", "degraded")
+
+
+@dataclass(frozen=True)
+class PairsInfo:
+    """Shape of a pairs file: ``n`` samples of ``channels`` x ``height`` x ``width``
+    images with ``bins``-bin voxel grids."""
+
+    n: int
+    channels: int
+    bins: int
+    height: int
+    width: int
+
+
+def read_pairs_info(path: str | Path) -> PairsInfo:
+    """Check the layout of a pairs file and return its shape (FormatError otherwise)."""
+    import h5py
+
+    path = Path(path)
+    if not path.is_file():
+        raise FormatError(path, None, "pairs file not found")
+    try:
+        f = h5py.File(path, "r")
+    except OSError as e:
+        raise FormatError(path, None, f"not a readable HDF5 file ({e})") from None
+    with f:
+        for name, ndim in REQUIRED.items():
+            if name not in f:
+                raise FormatError(path, name, "missing dataset")
+            if f[name].ndim != ndim:
+                raise FormatError(path, name, f"expected {ndim} dimensions, got shape {f[name].shape}")
+        n, c, h, w = f["blurry"].shape
+        if f["sharp"].shape != (n, c, h, w):
+            raise FormatError(path, "sharp", f"shape {f['sharp'].shape} != blurry {(n, c, h, w)}")
+        b = f["voxel_undegraded"].shape[1]
+        for name in ("voxel_undegraded", "voxel_degraded"):
+            if f[name].shape != (n, b, h, w):
+                raise FormatError(path, name, f"shape {f[name].shape}, expected {(n, b, h, w)}")
+        if f["level"].shape != (n,):
+            raise FormatError(path, "level", f"shape {f['level'].shape}, expected ({n},)")
+        if "bins" in f.attrs and int(f.attrs["bins"]) != b:
+            raise FormatError(path, "bins", f"attribute {int(f.attrs['bins'])} != voxel bins {b}")
+        if n == 0:
+            raise FormatError(path, "blurry", "no samples")
+    return PairsInfo(n=int(n), channels=int(c), bins=int(b), height=int(h), width=int(w))
+
+
+def draw_augment(seed: int, epoch: int, index: int, height: int, width: int,
+                 crop: int | None, augment: bool) -> tuple[int, int, int, int, bool, bool]:
+    """(y0, x0, ch, cw, flip_h, flip_v) of a draw: a pure function of (seed, epoch, index)."""
+    rng = np.random.default_rng([int(seed), int(epoch), int(index)])
+    if crop is None:
+        y0, x0, ch, cw = 0, 0, height, width
+    else:
+        ch, cw = min(crop, height), min(crop, width)
+        y0 = int(rng.integers(0, height - ch + 1))
+        x0 = int(rng.integers(0, width - cw + 1))
+    flips = rng.random(2) < 0.5 if augment else np.zeros(2, bool)
+    return y0, x0, ch, cw, bool(flips[0]), bool(flips[1])
+
+
+class PairsDataset(Dataset):
+    """Samples of a pairs file as dicts of tensors.
+
+    ``dataset[i]`` or ``dataset[(i, epoch)]`` returns ``blurry``/``sharp`` (C, h, w)
+    float32, ``voxel_undegraded``/``voxel_degraded`` (B, h, w) float32, ``voxel`` (the
+    network's input events: the ``events`` kind), ``level`` float64 scalar and ``index``
+    int64 scalar. ``crop`` (pixels, square; None = full frame) and flips are drawn from
+    ``(seed, epoch, index)`` (see :func:`draw_augment`); a crop larger than the frame
+    is an error.
+    """
+
+    def __init__(self, path: str | Path, events: str = "degraded", crop: int | None = None,
+                 augment: bool = False, *, seed: int = 0):
+        if events not in EVENT_KINDS:
+            raise ConfigError("events", f"must be one of {list(EVENT_KINDS)}, got {events!r}")
+        self.path = Path(path)
+        self.info = read_pairs_info(self.path)
+        if crop is not None:
+            if crop < 1:
+                raise ConfigError("train.crop", f"must be >= 1, got {crop}")
+            if crop > min(self.info.height, self.info.width):
+                raise ConfigError("train.crop", f"{crop} is larger than the frames "
+                                  f"({self.info.height}x{self.info.width}) of {self.path}")
+        self.events, self.crop, self.augment, self.seed = events, crop, bool(augment), int(seed)
+        self._file = None
+        self._pid = None
+
+    def __len__(self) -> int:
+        return self.info.n
+
+    # --- lazy per-process handle ------------------------------------------------------
+    def _h5(self):
+        if self._file is None or self._pid != os.getpid():
+            import h5py
+            self._file = h5py.File(self.path, "r")
+            self._pid = os.getpid()
+        return self._file
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["_file"], state["_pid"] = None, None
+        return state
+
+    def close(self) -> None:
+        if self._file is not None and self._pid == os.getpid():
+            self._file.close()
+        self._file = None
+
+    # --- samples ----------------------------------------------------------------------
+    def __getitem__(self, key) -> dict:
+        index, epoch = (key if isinstance(key, tuple) else (key, 0))
+        index = int(index)
+        if not 0 <= index < self.info.n:
+            raise IndexError(f"sample {index} out of range [0, {self.info.n})")
+        y0, x0, ch, cw, fh, fv = draw_augment(self.seed, epoch, index, self.info.height,
+                                              self.info.width, self.crop, self.augment)
+        f = self._h5()
+        win = (index, slice(None), slice(y0, y0 + ch), slice(x0, x0 + cw))
+        out = {}
+        for name in ("blurry", "sharp", "voxel_undegraded", "voxel_degraded"):
+            a = np.asarray(f[name][win], dtype=np.float32)
+            if fh:
+                a = a[:, :, ::-1]
+            if fv:
+                a = a[:, ::-1, :]
+            out[name] = torch.from_numpy(np.ascontiguousarray(a))
+        out["voxel"] = out[f"voxel_{self.events}"]
+        out["level"] = torch.tensor(float(f["level"][index]), dtype=torch.float64)
+        out["index"] = torch.tensor(index, dtype=torch.int64)
+        return out
+
+
+def step_indices(seed: int, step: int, batch_size: int, n: int) -> list[tuple[int, int]]:
+    """The (index, epoch) pairs of global training step ``step``: sample position
+    ``g = step * batch_size + j`` is row ``perm_e[g % n]`` of epoch ``e = g // n``, with
+    ``perm_e`` the permutation drawn from ``default_rng([seed, e])`` (each epoch visits
+    every row once)."""
+    g = np.arange(step * batch_size, (step + 1) * batch_size, dtype=np.int64)
+    epochs = g // n
+    out = []
+    cache: dict[int, np.ndarray] = {}
+    for gi, e in zip(g.tolist(), epochs.tolist()):
+        if e not in cache:
+            cache[e] = np.random.default_rng([int(seed), int(e)]).permutation(n)
+        out.append((int(cache[e][gi % n]), int(e)))
+    return out
+
+
+class StepSampler(Sampler):
+    """Yields the (index, epoch) keys of steps ``start_step .. stop_step - 1``; with
+    ``world_size`` processes, rank ``r`` takes the contiguous slice
+    ``[r * b, (r + 1) * b)`` (``b = batch_size // world_size``) of every global batch, so
+    the union over ranks is the single-process batch (DistributedSampler-equivalent
+    sharding, but of each step rather than of the epoch). Use with
+    ``DataLoader(batch_size=batch_size // world_size)``."""
+
+    def __init__(self, n: int, batch_size: int, seed: int, start_step: int, stop_step: int,
+                 rank: int = 0, world_size: int = 1):
+        if batch_size % world_size:
+            raise ConfigError("train.batch_size",
+                              f"{batch_size} is not divisible by the {world_size} processes")
+        self.n, self.batch_size, self.seed = n, batch_size, seed
+        self.start_step, self.stop_step = start_step, stop_step
+        self.rank, self.world_size = rank, world_size
+        self.local = batch_size // world_size
+
+    def __len__(self) -> int:
+        return max(0, self.stop_step - self.start_step) * self.local
+
+    def __iter__(self) -> Iterator[tuple[int, int]]:
+        lo = self.rank * self.local
+        for s in range(self.start_step, self.stop_step):
+            yield from step_indices(self.seed, s, self.batch_size, self.n)[lo:lo + self.local]

@@ -1,0 +1,343 @@
+"""The training loop of both RDNet stages and the baselines.
+
+Tasks (:data:`TASKS`) and their objectives (RDNet paper, Sec. 3.4):
+
+* ``restore`` -- stage 1, :class:`~rdnet.nn.models.RestoreNet` on (blurry, E_d) trained
+  towards E_u with the restoration loss ``alpha * |M (E_r - E_u)|_1`` (Eq. 8; M the
+  voxels where E_u or E_d has events, :func:`rdnet.nn.losses.restoration_loss`).
+* ``deblur`` / ``deblurnet_matched`` -- a :class:`~rdnet.nn.models.DeblurNet` on
+  (blurry, E) with E the ``events`` kind (undegraded or degraded), trained with L_d
+  (:func:`rdnet.nn.losses.deblur_loss`) towards the sharp frame.
+* ``image_only`` -- the DeblurNet without event branch, L_d.
+* ``rdnet`` -- stage 2: RDNet (stage 1 initialised from a stage-1 checkpoint,
+  ``init_checkpoint``, and fine-tuned when ``train.finetune_restore``) trained on
+  ``L_d + beta * |F(E_r) - F(E_u)|_1`` (Eq. 9; F the deblurring network's event
+  encoder) plus ``stage2_alpha`` times the masked voxel term (0 by default).
+
+Optimiser: Adam, cosine annealing from ``lr`` to ``lr_min`` over ``iterations`` steps
+(``CosineAnnealingLR(T_max=iterations, eta_min=lr_min)``, paper Sec. 4.1).
+
+Reproducibility: the network is initialised from ``torch.manual_seed(seed)`` (in a
+forked RNG scope), the rows and crops of step ``s`` are a pure function of
+``(seed, s)`` (:mod:`rdnet.train.data`), and the networks have no dropout; a run
+stopped after a checkpoint and resumed ends with the same weights as an uninterrupted
+run (bit-identical on CPU with the same thread count).
+
+Outputs in ``out_dir``: ``last.pt`` every ``ckpt_every`` steps (full state for
+resuming, removed once the run is complete), ``model.pt`` at the end (weights and
+description, no optimiser state), ``dvclive/`` metrics.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+from pathlib import Path
+from typing import Mapping
+
+import torch
+from torch import nn
+from torch.utils.data import DataLoader
+
+from rdnet.config import to_dict
+from rdnet.errors import ConfigError, FormatError
+from rdnet.train import checkpoint as ckpt_mod
+from rdnet.train.config import ModelConfig, TrainConfig
+from rdnet.train.data import PairsDataset, StepSampler
+from rdnet.train.distributed import DistInfo, dist_info, all_reduce_mean, barrier, replica_digests
+
+log = logging.getLogger(__name__)
+
+#: task -> network kind of :func:`rdnet.nn.models.build_model`.
+TASKS = {"restore": "restore", "deblur": "deblur", "deblurnet_matched": "deblurnet_matched",
+         "image_only": "image_only", "rdnet": "rdnet"}
+#: train keys that may change between a checkpoint and the run that resumes it.
+RESUME_FREE = ("log_every", "ckpt_every", "num_workers", "threads", "device", "dvclive")
+
+
+def resolve_device(name: str, info: DistInfo | None = None) -> torch.device:
+    """'auto' -> cuda when available, else cpu; under torchrun on CUDA, cuda:LOCAL_RANK."""
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda":
+        if not torch.cuda.is_available():
+            raise ConfigError("train.device", "cuda requested but no CUDA device is available")
+        idx = info.local_rank if info is not None and info.world_size > 1 else torch.cuda.current_device()
+        return torch.device("cuda", idx)
+    return torch.device("cpu")
+
+
+def model_args(task: str, model_cfg: ModelConfig, image_channels: int, bins: int) -> dict:
+    """Keyword arguments of ``build_model`` for ``task`` (stored in the checkpoint)."""
+    if task not in TASKS:
+        raise ConfigError("task", f"unknown task {task!r}; known: {', '.join(TASKS)}")
+    return {"kind": TASKS[task], "size": model_cfg.size, "image_channels": int(image_channels),
+            "bins": int(bins), **model_cfg.overrides()}
+
+
+def build_seeded(args: Mapping, seed: int) -> nn.Module:
+    """The network of ``args`` initialised from ``torch.manual_seed(seed)`` without
+    touching the caller's global RNG state."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        return ckpt_mod.build_from_args(args)
+
+
+# --- objectives -----------------------------------------------------------------------
+def compute_loss(task: str, model: nn.Module, batch: Mapping[str, torch.Tensor],
+                 cfg: TrainConfig) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """(loss, detached components) of one batch for ``task`` (module docstring)."""
+    from rdnet.nn.losses import deblur_loss, restoration_loss
+
+    blurry = batch["blurry"]
+    net = ckpt_mod.unwrap(model)
+    if task == "restore":
+        restored = model(blurry, batch["voxel_degraded"])
+        loss = restoration_loss(restored, batch["voxel_undegraded"], batch["voxel_degraded"],
+                                alpha=cfg.alpha, empty_weight=cfg.empty_weight)
+        return loss, {"loss": loss.detach()}
+    if task in ("deblur", "deblurnet_matched"):
+        pred = model(blurry, batch["voxel"])
+    elif task == "image_only":
+        pred = model(blurry, None)
+    elif task == "rdnet":
+        restored, pred = model(blurry, batch["voxel_degraded"])
+        ld = deblur_loss(pred, batch["sharp"])
+        lr = restoration_loss(restored, batch["voxel_undegraded"], batch["voxel_degraded"],
+                              alpha=cfg.stage2_alpha, feature_fn=net.deblur.event_features,
+                              beta=cfg.beta, empty_weight=cfg.empty_weight)
+        loss = ld + lr
+        return loss, {"loss": loss.detach(), "loss_deblur": ld.detach(), "loss_restore": lr.detach(),
+                      "psnr": batch_psnr(pred.detach(), batch["sharp"])}
+    else:
+        raise ConfigError("task", f"unknown task {task!r}; known: {', '.join(TASKS)}")
+    loss = deblur_loss(pred, batch["sharp"])
+    return loss, {"loss": loss.detach(), "psnr": batch_psnr(pred.detach(), batch["sharp"])}
+
+
+def batch_psnr(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean PSNR (dB, peak 1) of a batch of [0, 1] images, clipped; a cheap training-time
+    monitor (the reported metrics are :mod:`rdnet.eval.metrics`)."""
+    mse = ((pred.clamp(0, 1) - target) ** 2).flatten(1).mean(1).clamp_min(1e-10)
+    return (-10.0 * torch.log10(mse)).mean()
+
+
+# --- optimiser ------------------------------------------------------------------------
+def make_optimizer(task: str, net: nn.Module, cfg: TrainConfig):
+    """Adam (stage-1 parameters of RDNet at ``lr * restore_lr_scale`` or frozen) and the
+    cosine schedule to ``lr_min`` over ``iterations`` steps."""
+    if task == "rdnet":
+        rest = [p for n, p in net.named_parameters() if not n.startswith("restore.")]
+        groups = [{"params": rest, "lr": cfg.lr}]
+        if cfg.finetune_restore and cfg.restore_lr_scale > 0:
+            groups.append({"params": list(net.restore.parameters()), "lr": cfg.lr * cfg.restore_lr_scale})
+        else:
+            for p in net.restore.parameters():
+                p.requires_grad_(False)
+    else:
+        groups = [{"params": list(net.parameters()), "lr": cfg.lr}]
+    opt = torch.optim.Adam(groups, lr=cfg.lr, weight_decay=cfg.weight_decay)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.iterations, eta_min=cfg.lr_min)
+    return opt, sched
+
+
+# --- initialisation / resume ----------------------------------------------------------
+def _init_from(task: str, net: nn.Module, path: Path, args: Mapping) -> None:
+    """Copy weights from ``init_checkpoint``: for ``rdnet`` a stage-1 (restore) or an
+    rdnet checkpoint; otherwise a checkpoint of the same kind (fine-tuning)."""
+    ck = ckpt_mod.read_checkpoint(path)
+    kinds = ("restore", "rdnet") if task == "rdnet" else (args["kind"],)
+    if ck["model_kind"] not in kinds:
+        raise FormatError(path, "model_kind", f"holds a {ck['model_kind']!r} model; "
+                          f"task {task!r} can start from {' or '.join(map(repr, kinds))}")
+    ckpt_mod.check_compatible(path, ck, bins=args["bins"], image_channels=args["image_channels"])
+    if task == "rdnet" and ck["model_kind"] == "restore":
+        stored = {k: v for k, v in ck["model_args"].items() if k != "kind"}
+        wanted = {k: v for k, v in ckpt_mod._plain(args).items() if k != "kind"}
+        if stored != wanted:
+            raise FormatError(path, "model_args", f"stage-1 network {stored} differs from this "
+                              f"run's stage 1 {wanted}")
+        ckpt_mod.load_state(path, net.restore, ck["state_dict"])
+    else:
+        ckpt_mod.load_state(path, net, ck["state_dict"])
+    log.info("initialised %s from %s (step %s)", task, path, ck.get("step"))
+
+
+def _same_run(path: Path, ck: Mapping, task: str, args: Mapping, config: Mapping, extra: Mapping) -> None:
+    """ConfigError when checkpoint ``ck`` was written by a run with other settings."""
+    def differ(key, a, b):
+        raise ConfigError(key, f"{path} was written with {a!r}, this run has {b!r}; "
+                          "delete it or run without resuming")
+    if ck["task"] != task:
+        differ("task", ck["task"], task)
+    if ck["model_args"] != ckpt_mod._plain(args):
+        differ("model", ck["model_args"], ckpt_mod._plain(args))
+    for k, v in config.items():
+        if k not in RESUME_FREE and ck["config"].get(k) != v:
+            differ(f"train.{k}", ck["config"].get(k), v)
+    for k in ("events", "pairs_shape"):
+        if ck.get("extra", {}).get(k) != extra.get(k):
+            differ(k, ck.get("extra", {}).get(k), extra.get(k))
+
+
+def _open_live(out_dir: Path, resume: bool, params: Mapping):
+    """DVCLive logger, or None when dvclive is unavailable or fails to start. Never
+    writes dvc.yaml nor saves an experiment (safe inside ``dvc repro``/``dvc exp run``)."""
+    try:
+        from dvclive import Live
+        live = Live(dir=str(out_dir / "dvclive"), resume=resume, save_dvc_exp=False,
+                    dvcyaml=None, report=None, monitor_system=False)
+        live.log_params(ckpt_mod._plain(params))
+        return live
+    except Exception as e:  # optional: never fail a run because of logging
+        log.warning("dvclive disabled: %s", e)
+        return None
+
+
+# --- the loop -------------------------------------------------------------------------
+def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str | Path,
+          out_dir: str | Path, *, events: str = "degraded", init_checkpoint: str | Path | None = None,
+          resume: bool = True, progress: bool = True, stop_after: int | None = None) -> Path:
+    """Train ``task`` on the pairs file ``train_path``; return ``out_dir/model.pt``.
+
+    ``events``: the input event kind of deblur/deblurnet_matched (undegraded or
+    degraded; restore and rdnet always read degraded events and target undegraded).
+    ``init_checkpoint``: starting weights (required for rdnet: the stage-1 checkpoint;
+    a warning and a random stage 1 otherwise). ``resume``: continue from
+    ``out_dir/last.pt`` when it exists (ConfigError if it was written with other
+    settings); a finished ``model.pt`` of the same settings is returned as is.
+    ``stop_after``: stop once this many steps are done, as if killed right after the
+    checkpoint saved then (for tests of resuming); returns ``last.pt``.
+
+    Runs data-parallel when ``torch.distributed`` is initialised (see
+    :mod:`rdnet.train.distributed`): each process takes its share of every step's
+    batch, only rank 0 logs and writes files.
+    """
+    if task not in TASKS:
+        raise ConfigError("task", f"unknown task {task!r}; known: {', '.join(TASKS)}")
+    if events not in ("undegraded", "degraded"):
+        raise ConfigError("events", f"must be undegraded or degraded, got {events!r}")
+    if task in ("restore", "rdnet"):
+        events = "degraded"
+    info = dist_info()
+    device = resolve_device(cfg.device, info)
+    if cfg.threads > 0:
+        torch.set_num_threads(cfg.threads)
+    out_dir = Path(out_dir)
+    last_path, final_path = out_dir / "last.pt", out_dir / "model.pt"
+
+    data = PairsDataset(train_path, events=events, crop=cfg.crop, augment=cfg.augment, seed=cfg.seed)
+    args = model_args(task, model_cfg, data.info.channels, data.info.bins)
+    config = to_dict(cfg)
+    extra = {"events": events, "train_path": str(Path(train_path)),
+             "init_checkpoint": None if init_checkpoint is None else str(init_checkpoint),
+             "model_cfg": to_dict(model_cfg), "pairs_shape": dataclasses.asdict(data.info)}
+
+    if resume and final_path.is_file() and not last_path.is_file():
+        ck = ckpt_mod.read_checkpoint(final_path)
+        _same_run(final_path, ck, task, args, config, extra)
+        if ck.get("step") == cfg.iterations:
+            log.info("%s is complete; nothing to do", final_path)
+            return final_path
+
+    net = build_seeded(args, cfg.seed)
+    start = 0
+    state = None
+    if resume and last_path.is_file():
+        state = ckpt_mod.read_checkpoint(last_path)
+        _same_run(last_path, state, task, args, config, extra)
+        for key in ("optimizer", "scheduler", "step", "rng"):
+            if key not in state:
+                raise FormatError(last_path, key, "missing: cannot resume from this checkpoint")
+        ckpt_mod.load_state(last_path, net, state["state_dict"])
+        start = int(state["step"])
+        log.info("resuming %s from %s at step %d", task, last_path, start)
+    elif init_checkpoint is not None:
+        _init_from(task, net, Path(init_checkpoint), args)
+    elif task == "rdnet":
+        log.warning("rdnet without init_checkpoint: stage 1 starts from random weights")
+    net.to(device)
+    opt, sched = make_optimizer(task, net, cfg)
+    if state is not None:
+        try:
+            opt.load_state_dict(state["optimizer"])
+            sched.load_state_dict(state["scheduler"])
+        except (ValueError, KeyError) as e:
+            raise FormatError(last_path, "optimizer", f"does not fit this network: {e}") from None
+        ckpt_mod.set_rng_state(state["rng"])
+    del state
+
+    model: nn.Module = net
+    if info.world_size > 1:
+        from torch.nn.parallel import DistributedDataParallel as DDP
+        model = DDP(net, device_ids=[device.index] if device.type == "cuda" else None)
+    model.train()
+
+    stop = cfg.iterations if stop_after is None else min(cfg.iterations, int(stop_after))
+    sampler = StepSampler(len(data), cfg.batch_size, cfg.seed, start, stop, info.rank, info.world_size)
+    loader = DataLoader(data, batch_size=sampler.local, sampler=sampler, num_workers=cfg.num_workers,
+                        pin_memory=device.type == "cuda", drop_last=False,
+                        persistent_workers=False)
+
+    main = info.rank == 0
+    live = _open_live(out_dir, resume=start > 0, params={"task": task, "train": config, **extra}) \
+        if (main and cfg.dvclive and start < stop) else None
+    from tqdm.auto import tqdm
+    bar = tqdm(total=cfg.iterations, initial=start, desc=f"train {task}", unit="step",
+               disable=(not progress or not main) or None, dynamic_ncols=True)
+
+    def save(path: Path, step: int, full: bool) -> None:
+        ck = ckpt_mod.make_checkpoint(net, task, args, config=config, step=step, extra=extra,
+                                      optimizer=opt if full else None,
+                                      scheduler=sched if full else None, with_rng=full)
+        if info.world_size > 1:
+            ck["replica_digests"] = replica_digests(net)
+        if main:
+            ckpt_mod.save_checkpoint(path, ck)
+        barrier()
+
+    sums: dict[str, torch.Tensor] = {}
+    count = 0
+    step = start
+    try:
+        for batch in loader:
+            batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
+            loss, parts = compute_loss(task, model, batch, cfg)
+            if not torch.isfinite(loss):
+                raise FloatingPointError(f"non-finite loss {loss.item()} at step {step}")
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            if cfg.grad_clip > 0:
+                nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
+            opt.step()
+            sched.step()
+            step += 1
+            for k, v in parts.items():
+                sums[k] = sums.get(k, 0) + v.float()
+            count += 1
+            bar.update(1)
+            if step % cfg.log_every == 0 or step == stop:
+                means = {k: float(all_reduce_mean(v / count)) for k, v in sums.items()}
+                sums, count = {}, 0
+                if main:
+                    means["lr"] = opt.param_groups[0]["lr"]
+                    bar.set_postfix({k: f"{v:.4g}" for k, v in means.items()})
+                    log.debug("step %d %s", step, means)
+                    if live is not None:
+                        live.step = step
+                        for k, v in means.items():
+                            live.log_metric(f"train/{k}", v)
+                        live.next_step()
+            if step < cfg.iterations and (step % cfg.ckpt_every == 0 or step == stop):
+                save(last_path, step, full=True)
+    finally:
+        bar.close()
+        if live is not None:
+            live.end()
+        data.close()
+
+    if stop < cfg.iterations:
+        return last_path
+    save(final_path, step, full=False)
+    if main and last_path.exists():
+        last_path.unlink()
+    return final_path
