@@ -25,9 +25,16 @@ from rdnet.errors import ConfigError
 
 #: section name -> "module:Class" of its frozen dataclass (imported lazily).
 SECTIONS: dict[str, str] = {
+    "scenes": "rdnet.sim.scenes:ScenesConfig",
+    "interpolate": "rdnet.sim.interpolate:InterpolateConfig",
     "sensor": "rdnet.sim.settings:SensorConfig",
     "degrade": "rdnet.sim.settings:DegradeConfig",
+    "randomize": "rdnet.sim.settings:RandomizeConfig",
+    "blur": "rdnet.sim.blur:BlurConfig",
     "voxel": "rdnet.events.voxel_config:VoxelConfig",
+    "model": "rdnet.train.config:ModelConfig",
+    "train": "rdnet.train.config:TrainConfig",
+    "ablation": "rdnet.study.rows:AblationConfig",
 }
 
 

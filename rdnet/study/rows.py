@@ -1,0 +1,194 @@
+"""Ablation rows of the study (``ablation`` section): every row is data.
+
+A row names a method and its inputs::
+
+    rdnet:          {method: rdnet, checkpoint: models/rdnet/model.pt, events: degraded, paper_psnr: 37.33}
+    stcf:           {method: deblur, checkpoint: models/deblur_undegraded/model.pt, events: degraded,
+                     filter: stcf}
+
+methods: ``deblur`` (DeblurNet fed ``events``), ``rdnet`` (stage 1 + 2), ``image_only``,
+``edi`` (Pan et al. 2019 on the ``events`` voxels), ``blurry`` (the input itself).
+``filter`` (deblur rows only) denoises the input events first: ``stcf`` (spatio-temporal
+correlation filter on the raw event stream, then re-voxelized) or ``gef`` (image-guided
+filtering of the voxels).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal, Optional
+
+import numpy as np
+from tqdm import tqdm
+
+from rdnet.config import from_dict
+from rdnet.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Parameters of the event-denoising baselines."""
+
+    stcf_tau_us: int = 10000
+    stcf_k: int = 2
+    stcf_radius: int = 1
+    gef_radius: int = 2
+    gef_eps: float = 0.01
+
+
+@dataclass(frozen=True)
+class RowConfig:
+    method: Literal["deblur", "rdnet", "image_only", "edi", "blurry"]
+    checkpoint: Optional[str] = None
+    events: Literal["degraded", "undegraded"] = "degraded"
+    filter: Optional[Literal["stcf", "gef"]] = None
+    needs: Optional[str] = None          # the extra DVC dependency of the row (dvc.yaml)
+    paper_psnr: Optional[float] = None
+    label: str = ""
+
+    def __post_init__(self):
+        if self.method in ("deblur", "rdnet", "image_only") and not self.checkpoint:
+            raise ConfigError("ablation.rows.*.checkpoint", f"method {self.method} needs a checkpoint")
+        if self.filter and self.method != "deblur":
+            raise ConfigError("ablation.rows.*.filter", "filters apply to deblur rows only")
+
+
+@dataclass(frozen=True)
+class AblationConfig:
+    rows: dict = field(default_factory=dict)
+    filters: FilterConfig = FilterConfig()
+    batch_size: int = 8
+    device: str = "auto"
+    level_bins: int = 4
+
+    def row(self, row_id: str) -> RowConfig:
+        if row_id not in self.rows:
+            raise ConfigError(f"ablation.rows.{row_id}", f"unknown row; rows: {', '.join(self.rows)}")
+        return from_dict(RowConfig, self.rows[row_id], f"ablation.rows.{row_id}")
+
+
+class _StcfTransform:
+    """Voxels of the STCF-filtered raw degraded events of each sample's window."""
+
+    def __init__(self, pairs_path: Path, events_dir: Path, cfg: FilterConfig, bins: int, mode: str):
+        import h5py
+        with h5py.File(pairs_path, "r") as f:
+            self.seq = np.asarray(f["sequence"])
+            self.t0 = np.asarray(f["t0_us"])
+            self.dur = np.asarray(f["duration_us"])
+        self.files = sorted(Path(events_dir).glob("seq_*.h5"))
+        self.cfg, self.bins, self.mode = cfg, bins, mode
+        self._cache: dict[int, object] = {}
+
+    def events(self, s: int):
+        if s not in self._cache:
+            from rdnet.baselines.stcf import stcf_filter
+            from rdnet.events.io import read_events
+            ev = read_events(self.files[s])
+            self._cache = {s: stcf_filter(ev, self.cfg.stcf_tau_us, self.cfg.stcf_k, self.cfg.stcf_radius)}
+        return self._cache[s]
+
+    def __call__(self, voxels: np.ndarray, index: np.ndarray) -> np.ndarray:
+        from rdnet.events.voxel import voxel_grid
+        return np.stack([voxel_grid(self.events(int(self.seq[i])), self.bins, int(self.t0[i]),
+                                    int(self.dur[i]), mode=self.mode) for i in index])
+
+
+class _GefTransform:
+    def __init__(self, pairs_path: Path, cfg: FilterConfig):
+        import h5py
+        with h5py.File(pairs_path, "r") as f:
+            self.blurry = np.asarray(f["blurry"])
+        self.cfg = cfg
+
+    def __call__(self, voxels: np.ndarray, index: np.ndarray) -> np.ndarray:
+        from rdnet.baselines.gef import gef_voxel
+        return np.stack([gef_voxel(v, self.blurry[i], self.cfg.gef_radius, self.cfg.gef_eps)
+                         for v, i in zip(voxels, index)])
+
+
+def voxel_filter(name: str | None, pairs_path: Path, events_dir: Path | None, cfg: FilterConfig):
+    """The ``voxel_transform`` of a filter name (None: no filtering)."""
+    if name is None:
+        return None
+    if name == "gef":
+        return _GefTransform(pairs_path, cfg)
+    if name == "stcf":
+        if events_dir is None:
+            raise ConfigError("ablation.filter", "stcf needs the raw test events (--events-dir)")
+        from rdnet.train.data import read_pairs_info
+        import h5py
+        with h5py.File(pairs_path, "r") as f:
+            mode = str(f.attrs.get("voxel_mode", "hard"))
+        return _StcfTransform(pairs_path, events_dir, cfg, read_pairs_info(pairs_path).bins, mode)
+    raise ConfigError("ablation.filter", f"unknown filter {name!r}")
+
+
+def evaluate_edi(pairs_path: Path, events: str, level_bins: int) -> dict:
+    """EDI (Pan et al., CVPR 2019) on every test sample, from its voxel grid."""
+    from rdnet.baselines.edi import edi_from_voxel
+    from rdnet.eval import metrics as M
+    from rdnet.sim.blur import read_pairs
+    preds, sharp, levels = [], [], []
+    with read_pairs(pairs_path) as pf:
+        for i in tqdm(range(len(pf)), desc="edi", disable=None):
+            s = pf[i]
+            out, _ = edi_from_voxel(s["blurry"], s[f"voxel_{events}"])
+            preds.append(np.clip(out, 0, 1)); sharp.append(s["sharp"]); levels.append(float(s["level"]))
+    per = M.image_metrics_per_sample(np.stack(preds), np.stack(sharp))
+    return {"method": "edi", "events": events, "n": len(preds), "psnr": float(np.mean(per["psnr"])),
+            "ssim": float(np.mean(per["ssim"])), "by_level": M.by_level(per, np.array(levels), bins=level_bins),
+            "per_sample": {"level": levels, **{k: v.tolist() for k, v in per.items()}}}
+
+
+def evaluate_ablation_row(cfg: AblationConfig, row_id: str, pairs_path: Path,
+                          events_dir: Path | None = None) -> dict:
+    """Metrics of one row on the test pairs: ``psnr``, ``ssim``, ``by_level``, ..."""
+    row = cfg.row(row_id)
+    if row.method == "edi":
+        out = evaluate_edi(pairs_path, row.events, cfg.level_bins)
+    else:
+        from rdnet.eval.predict import evaluate_row
+        kind = {"deblur": "deblur"}.get(row.method, row.method)
+        transform = voxel_filter(row.filter, pairs_path, events_dir, cfg.filters)
+        out = evaluate_row(kind, row.checkpoint, pairs_path, row.events, transform,
+                           batch_size=cfg.batch_size, device=cfg.device, level_bins=cfg.level_bins,
+                           progress=True)
+    out["row"] = row_id
+    out["filter"] = row.filter
+    out["paper_psnr"] = row.paper_psnr
+    out["label"] = row.label or row_id
+    return out
+
+
+def restoration_table(cfg: AblationConfig, pairs_path: Path, events_dir: Path, rdnet_checkpoint: Path,
+                      methods=("degraded", "stcf", "gef", "rdnet")) -> dict:
+    """Restoration metrics against the undegraded voxels, per method, overall and per
+    dominant degradation (threshold bias / bandwidth / noise ...)."""
+    from rdnet.eval import metrics as M
+    from rdnet.eval.predict import predict
+    import h5py
+    with h5py.File(pairs_path, "r") as f:
+        u = np.asarray(f["voxel_undegraded"]); d = np.asarray(f["voxel_degraded"])
+        degrade = {k: np.asarray(f["degrade"][k]) for k in f["degrade"]} if "degrade" in f else {}
+    idx = np.arange(len(u))
+    restored = {"degraded": d}
+    if "stcf" in methods:
+        restored["stcf"] = voxel_filter("stcf", pairs_path, events_dir, cfg.filters)(d, idx)
+    if "gef" in methods:
+        restored["gef"] = voxel_filter("gef", pairs_path, events_dir, cfg.filters)(d, idx)
+    if "rdnet" in methods:
+        restored["rdnet"] = predict("rdnet", rdnet_checkpoint, pairs_path, "degraded",
+                                    batch_size=cfg.batch_size, device=cfg.device)["restored"]
+    labels = M.dominant_degradation(degrade) if degrade else None
+    out = {}
+    for name, r in restored.items():
+        per = M.restoration_per_sample(r, u, d)
+        entry = {k: float(np.mean(v)) for k, v in per.items() if k != "mask_fraction"}
+        if labels is not None:
+            entry["by_degradation"] = M.group_means({k: per[k] for k in ("voxel_l1", "voxel_psnr")}, labels)
+        out[name] = entry
+    return out

@@ -1,0 +1,29 @@
+"""Stage `report`: results/ablation.md (table from the metrics, with the paper's numbers
+and gaps) and figures (PSNR per row, PSNR against degradation level, sample grid).
+`python stages/report.py --sync-readme` copies the table into README.md."""
+from pathlib import Path
+
+import _common
+
+
+def main(args, params):
+    from rdnet.study.report import sync_readme, write_report
+    order = list((params.get("ablation") or {}).get("rows", {}))
+    if args.sync_readme:
+        changed = sync_readme(Path("README.md"), (args.out / "ablation.md").read_text())
+        print("README.md updated" if changed else "README.md already up to date")
+        return
+    write_report(args.details, args.restoration, args.out, order)
+    if args.samples:
+        from rdnet.study.figures import sample_figure
+        sample_figure(params, args.pairs, args.out / "samples.png")
+
+
+p = _common.parser(__doc__)
+p.add_argument("--details", type=Path, default=Path("results/rows"))
+p.add_argument("--restoration", type=Path, default=Path("metrics/restoration.json"))
+p.add_argument("--pairs", type=Path, default=Path("data/pairs/test.h5"))
+p.add_argument("--out", type=Path, default=Path("results"))
+p.add_argument("--samples", action="store_true", help="also draw results/samples.png")
+p.add_argument("--sync-readme", action="store_true")
+_common.run(main, p)
