@@ -1,1 +1,25 @@
-"""Sim-to-real calibration: statistics, mismatch localisation, effect fits, report."""
+"""Sim-to-real calibration (``rdnet calibrate``): statistics, mismatch localisation,
+effect fits, report, and the proof on concealed effects.
+
+- :mod:`~rdnet.calib.context`: the recording's window, segments, pixel sample, static mask.
+- :mod:`~rdnet.calib.stats`: event statistics and the discrepancy metric.
+- :mod:`~rdnet.calib.effects`: the vocabulary of effects and their ``degrade`` keys.
+- :mod:`~rdnet.calib.fit`: basic refit and forward selection with held-out scoring.
+- :mod:`~rdnet.calib.calibrate`: :func:`calibrate` (the whole diagnosis -> report dict).
+- :mod:`~rdnet.calib.report`: report.json / report.md / figures.
+- :mod:`~rdnet.calib.consistency`: event-frame consistency.
+- :mod:`~rdnet.calib.proof`, :mod:`~rdnet.calib.scene`: concealed-effect proof cases.
+
+report.json schema::
+
+    {"recording": str, "base_config": {"sensor": {...}, "degrade": {...}},
+     "fitted_config": {"sensor": {...}, "degrade": {...}},
+     "effects": [{"name", "missing", "parameters", "where", "evidence", "confidence", ...}],
+     "discrepancy": {"metric", "fit_before", "fit_after", "heldout_before", "heldout_after", ...},
+     "basic_refit": {...}, "mismatch": {...}, "consistency": {...}, "setup": {...}}
+"""
+from rdnet.calib.calibrate import Calibration, calibrate, finding
+from rdnet.calib.effects import EFFECTS
+from rdnet.calib.settings import CalibrateConfig
+
+__all__ = ["EFFECTS", "Calibration", "CalibrateConfig", "calibrate", "finding"]

@@ -1,0 +1,89 @@
+"""The vocabulary of sensor effects the calibration can name, and how each maps to the
+``degrade`` keys of the simulator (:class:`rdnet.sim.settings.DegradeConfig`)."""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from rdnet.sim.settings import DegradeConfig, SensorConfig
+
+
+@dataclass(frozen=True)
+class Param:
+    """One fitted parameter: ``key`` of ``degrade`` (or ``threshold_scale``, the common
+    factor of both sensor thresholds), search range [lo, hi], searched in log scale."""
+
+    key: str
+    lo: float
+    hi: float
+
+
+@dataclass(frozen=True)
+class Effect:
+    """A named sensor effect: its parameters, the value that turns each off, the
+    statistic that reveals it and a one-line description of the physics."""
+
+    name: str
+    params: tuple[Param, ...]
+    statistic: str
+    physics: str
+    changes_count: bool = False     # removes or adds signal events: thresholds can hide it
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        return tuple(p.key for p in self.params)
+
+    def present(self, degrade: DegradeConfig) -> bool:
+        return any(getattr(degrade, k) != OFF.get(k, 0.0) for k in self.keys)
+
+
+#: value of a degrade key that turns its effect off
+OFF = {"onoff_ratio": 1.0}
+
+#: the basic parameter re-fitted first: both thresholds times a common factor
+THRESHOLD_SCALE = Param("threshold_scale", 0.4, 2.5)
+
+EFFECTS: dict[str, Effect] = {e.name: e for e in (
+    Effect("threshold_mismatch", (Param("threshold_sigma", 0.01, 0.6),), "pixel_quantiles",
+           "per-pixel spread of the contrast thresholds (fixed-pattern mismatch)", True),
+    Effect("onoff_asymmetry", (Param("onoff_ratio", 0.4, 2.5),), "on_fraction",
+           "ON and OFF contrast thresholds differ", True),
+    Effect("bandwidth", (Param("cutoff_hz", 1.0, 3000.0),), "rate_vs_intensity",
+           "photoreceptor low-pass filter whose cutoff falls with intensity (slow dark pixels)", True),
+    Effect("refractory_period", (Param("refractory_us", 20.0, 50000.0),), "iei",
+           "dead time after each event of a pixel", True),
+    Effect("shot_noise", (Param("shot_noise_hz", 1e-4, 30.0),), "static_rate",
+           "balanced ON/OFF Poisson noise events"),
+    Effect("leak_events", (Param("leak_hz", 1e-4, 30.0),), "static_on_fraction",
+           "ON-only leak events from junction leakage"),
+    Effect("hot_pixels", (Param("hot_pixel_fraction", 0.0005, 0.05), Param("hot_pixel_hz", 3.0, 3000.0)),
+           "pixel_tail", "a few pixels fire continuously"),
+    Effect("timestamp_jitter", (Param("jitter_us", 20.0, 20000.0),), "rate_time",
+           "random timestamp noise"),
+    Effect("latency", (Param("latency_us", 50.0, 50000.0),), "lag",
+           "constant delay of the event timestamps"),
+    Effect("readout_saturation", (Param("sample_period_us", 20.0, 50000.0),), "iei",
+           "readout samples each pixel at most once per period", True),
+)}
+
+
+def apply(sensor: SensorConfig, degrade: DegradeConfig, values: dict[str, float]
+          ) -> tuple[SensorConfig, DegradeConfig]:
+    """Configs with ``values`` applied (``threshold_scale`` multiplies both thresholds)."""
+    vals = dict(values)
+    scale = vals.pop("threshold_scale", 1.0)
+    if scale != 1.0:
+        sensor = dataclasses.replace(sensor, threshold_on=sensor.threshold_on * scale,
+                                     threshold_off=sensor.threshold_off * scale)
+    if vals:
+        degrade = dataclasses.replace(degrade, **vals)
+    return sensor, degrade
+
+
+def absent_effects(degrade: DegradeConfig) -> list[Effect]:
+    """Effects the config leaves out (all of their keys off), in vocabulary order."""
+    return [e for e in EFFECTS.values() if not e.present(degrade)]
+
+
+def present_effects(degrade: DegradeConfig) -> list[Effect]:
+    return [e for e in EFFECTS.values() if e.present(degrade)]

@@ -1,0 +1,211 @@
+"""Writing a calibration: ``report.json`` (machine-readable, schema in
+:mod:`rdnet.calib`), ``report.md`` (for a person: the finding first, then the evidence)
+and PNG figures. Every file is written to a temporary name and renamed."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from rdnet.calib.calibrate import Calibration, finding
+from rdnet.calib.effects import EFFECTS
+from rdnet.calib.stats import IEI_EDGES, TAIL_BANDS
+from rdnet.errors import FormatError
+from rdnet.events.io._common import atomic_output
+
+
+def _atomic(path: Path, write) -> None:
+    with atomic_output(path) as tmp:
+        write(tmp)
+
+
+def _clean(o):
+    if isinstance(o, dict):
+        return {str(k): _clean(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_clean(v) for v in o]
+    if isinstance(o, (np.floating, float)):
+        v = float(o)
+        return v if math.isfinite(v) else None
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.ndarray):
+        return _clean(o.tolist())
+    return o
+
+
+def write_json(path: Path, data: dict) -> None:
+    text = json.dumps(_clean(data), indent=2)
+    _atomic(Path(path), lambda p: Path(p).write_text(text + "\n"))
+
+
+def markdown(cal: Calibration, figures: list[str]) -> str:
+    r = cal.report
+    d = r["discrepancy"]
+    lines = [f"# Sim-to-real calibration: {Path(r['recording']).name}", "", finding(r), ""]
+    lines += ["## Discrepancy", "",
+              f"Metric: {d['metric']}.", "",
+              "| | fit segments | held-out segments |", "|---|---|---|",
+              f"| base config | {d['fit_before']:.3f} | {d['heldout_before']:.3f} |",
+              f"| after basic refit | | {d['heldout_after_basic_refit']:.3f} |",
+              f"| fitted config | {d['fit_after']:.3f} | {d['heldout_after']:.3f} |", "",
+              f"Seed std of the held-out discrepancy: {d['heldout_seed_std_before']:.3f} (base), "
+              f"{d['heldout_seed_std_after']:.3f} (fitted). Noise floor (fitted config against itself, "
+              f"other seeds): {d['heldout_noise_floor']:.3f}; excess over it {d['heldout_excess_before']:.3f} "
+              f"-> {d['heldout_excess_after']:.3f}.", ""]
+    lines += ["## Effects the base config leaves out", "",
+              "| effect | missing | confidence | rank | parameters | held-out gain | where |",
+              "|---|---|---|---|---|---|---|"]
+    for e in r["effects"]:
+        p = ", ".join(f"{k}={v:.4g}" for k, v in e["parameters"].items())
+        lines.append(f"| {e['name']} | {'**yes**' if e['missing'] else 'no'} | {e['confidence']:.2f} | "
+                     f"{e.get('rank') or '-'} | {p} | {e.get('heldout_gain', 0):.3f} | {e['where']} |")
+    lines += ["", "Evidence per effect:", ""]
+    for e in r["effects"]:
+        lines.append(f"- **{e['name']}**: {e['evidence']}")
+    lines += ["", "## Basic refit (configured parameters)", "",
+              ", ".join(f"{k} = {v:.4g}" for k, v in r["basic_refit"].items()) or "(nothing)", ""]
+    lines += ["## Where the base simulation differs", "", "| statistic | held-out before | after |", "|---|---|---|"]
+    for k, v in d["terms_heldout_before"].items():
+        lines.append(f"| {k} | {v:.3f} | {d['terms_heldout_after'][k]:.3f} |")
+    m = r["mismatch"]["base"]
+    lines += ["", f"- event rate: {m['rate_real_hz_per_pixel']:.3g} Hz/pixel real vs {m['rate_sim_hz_per_pixel']:.3g} sim",
+              f"- static pixels: rate {m['static_rate_hz']['real']:.3g} vs {m['static_rate_hz']['sim']:.3g} Hz, "
+              f"ON fraction {m['static_on_fraction']['real']:.2f} vs {m['static_on_fraction']['sim']:.2f}",
+              f"- moving pixels ON fraction: {m['moving_on_fraction']['real']:.3f} vs {m['moving_on_fraction']['sim']:.3f}",
+              f"- rate cross-correlation lag (real after sim): {m['lag_us'] / 1000:.2f} ms",
+              f"- worst coarse cells (x, y, log sim/real): " + ", ".join(
+                  f"({c['x']}, {c['y']}, {c['log_ratio_sim_real']:+.2f})" for c in m["worst_cells"]), ""]
+    c = r["consistency"]
+    lines += ["## Event-frame consistency", "",
+              "R^2 and correlation of threshold x signed event count against the log-intensity change between "
+              "consecutive frames, over active pixels.", "",
+              "| events | thresholds | R^2 | correlation | slope | active |", "|---|---|---|---|---|---|"]
+    for k, label in (("real_base_thresholds", "real / base"), ("real_fitted_thresholds", "real / fitted"),
+                     ("sim_base", "sim base / base"), ("sim_fitted", "sim fitted / fitted")):
+        v = c[k]
+        lines.append(f"| {label.split(' / ')[0]} | {label.split(' / ')[1]} | {_f(v['r2'])} | "
+                     f"{_f(v['correlation'])} | {_f(v['slope'])} | {v['active']} |")
+    s = r["setup"]
+    lines += ["", "## Setup", "",
+              f"{s['sampled_pixels']} sampled pixels (stride {s['pixel_stride']}), {s['real_events_compared']} "
+              f"real events compared, {s['simulated_frames']} simulated frames, seeds {s['seeds']}, "
+              f"{s['simulations']} simulations, {s['runtime_s']:.1f} s. Fit segments {s['fit_segments']}, "
+              f"held-out segments {s['heldout_segments']}.", ""]
+    if figures:
+        lines += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]
+    return "\n".join(lines)
+
+
+def _f(v) -> str:
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.3f}"
+
+
+# --- figures ----------------------------------------------------------------------------
+
+def _plot_statistic(ax, name: str, cal: Calibration) -> None:
+    ctx = cal.ctx
+    series = (("real", cal.real_stats, "k"), ("base", cal.base_stats, "tab:red"),
+              ("fitted", cal.fitted_stats, "tab:blue"))
+    if name in ("rate_vs_intensity", "on_vs_intensity"):
+        e = ctx.intensity_edges
+        xc = 0.5 * (e[:-1] + e[1:])
+        for lab, s, col in series:
+            ax.plot(xc, s[name], "o-", color=col, label=lab)
+        ax.set_xlabel("log intensity")
+        ax.set_ylabel("events / pixel / s" if name == "rate_vs_intensity" else "ON fraction")
+        if name == "rate_vs_intensity":
+            ax.set_yscale("log")
+    elif name == "iei":
+        xc = np.concatenate([[IEI_EDGES[0] - 0.25], IEI_EDGES])
+        for lab, s, col in series:
+            ax.step(xc, s["iei"], where="post", color=col, label=lab)
+        ax.set_xlabel("log10 inter-event interval (us)")
+        ax.set_ylabel("fraction")
+    elif name in ("rate_time", "lag"):
+        t = (ctx.time_edges[:-1] - ctx.t0) * 1e-3
+        for lab, s, col in series:
+            ax.plot(t, s["rate_time"], color=col, lw=0.8, label=lab)
+        ax.set_xlabel("time (ms)")
+        ax.set_ylabel("events / s")
+    elif name in ("pixel_tail", "pixel_quantiles"):
+        for lab, s, col in series:
+            ax.plot(np.arange(len(s[name])), s[name], "o-", color=col, label=lab)
+        ax.set_yscale("log")
+        ax.set_xlabel("quantile band" + (f" {TAIL_BANDS}" if name == "pixel_tail" else ""))
+        ax.set_ylabel("mean rate (Hz)")
+    elif name in ("static_rate", "static_on_fraction", "on_fraction"):
+        keys = ["static_rate", "static_on_fraction", "on_fraction"]
+        w = 0.25
+        for i, (lab, s, col) in enumerate(series):
+            vals = [float(s["static_rate"]) / max(float(cal.real_stats["static_rate"]), 1e-9),
+                    float(s["static_on_fraction"]), float(s["on_fraction"])]
+            ax.bar(np.arange(3) + (i - 1) * w, vals, w, color=col, label=lab)
+        ax.set_xticks(range(3), ["static rate\n(/ real)", "static ON\nfraction", "moving ON\nfraction"])
+    else:  # rate_map
+        ax.imshow(cal.real_stats["rate_map"], cmap="magma")
+    ax.set_title(name)
+    ax.legend(fontsize=7)
+
+
+def figures(cal: Calibration, out: Path) -> list[str]:
+    """Write the PNG figures; returns their file names."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = []
+    floor = 0.05 * max(float(cal.real_stats["rate"]), 1e-6)
+
+    def save(fig, name):
+        _atomic(out / name, lambda p: fig.savefig(p, dpi=90, format="png"))
+        plt.close(fig)
+        names.append(name)
+
+    fig, axes = plt.subplots(1, 5, figsize=(17, 3.4))
+    maps = [cal.real_stats["rate_map"], cal.base_stats["rate_map"], cal.fitted_stats["rate_map"]]
+    vmax = max(float(m.max()) for m in maps) or 1.0
+    for ax, m, t in zip(axes[:3], maps, ("real", "sim base", "sim fitted")):
+        im = ax.imshow(m, cmap="magma", vmin=0, vmax=vmax)
+        ax.set_title(f"rate map {t} (Hz)")
+        fig.colorbar(im, ax=ax, fraction=0.046)
+    for ax, m, t in zip(axes[3:], maps[1:], ("base", "fitted")):
+        lr = np.log((m + floor) / (maps[0] + floor))
+        im = ax.imshow(lr, cmap="coolwarm", vmin=-2, vmax=2)
+        ax.set_title(f"log(sim {t} / real)")
+        fig.colorbar(im, ax=ax, fraction=0.046)
+    fig.tight_layout()
+    save(fig, "mismatch_maps.png")
+
+    stat_names = ["rate_vs_intensity", "on_vs_intensity", "iei", "rate_time", "pixel_tail", "static_rate"]
+    fig, axes = plt.subplots(2, 3, figsize=(15, 8))
+    for ax, n in zip(axes.ravel(), stat_names):
+        _plot_statistic(ax, n, cal)
+    fig.tight_layout()
+    save(fig, "statistics.png")
+
+    for e in cal.report["effects"]:
+        if not e["missing"]:
+            continue
+        fig, ax = plt.subplots(figsize=(6, 4))
+        _plot_statistic(ax, EFFECTS[e["name"]].statistic, cal)
+        ax.set_title(f"{e['name']}: {EFFECTS[e['name']].statistic} (before = base, after = fitted)")
+        fig.tight_layout()
+        save(fig, f"effect_{e['name']}.png")
+    return names
+
+
+def write_report(cal: Calibration, out_dir: str | Path, *, plots: bool = True) -> list[Path]:
+    """Write report.json, report.md and the figures into ``out_dir`` (created)."""
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise FormatError(out, None, f"cannot create output folder ({e.strerror})") from None
+    figs = figures(cal, out) if plots else []
+    write_json(out / "report.json", cal.report)
+    md = markdown(cal, figs)
+    _atomic(out / "report.md", lambda p: Path(p).write_text(md))
+    return [out / "report.json", out / "report.md"] + [out / f for f in figs]

@@ -1,0 +1,70 @@
+"""``calibrate`` section of params.yaml: how ``rdnet calibrate`` compares simulation and
+recording (segments, seeds, statistic resolution, significance rule)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Tuple
+
+from rdnet.config import positive
+from rdnet.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class CalibrateConfig:
+    """Settings of the sim-to-real calibration (:mod:`rdnet.calib`).
+
+    ``segments``: the recording is cut into this many equal time segments; even ones are
+    used to fit, odd ones are held out to score. ``seeds``: simulation seeds (common random
+    numbers: every candidate is simulated with the same seeds). ``pixel_stride``: simulate
+    every k-th row/column only (DVS pixels are independent, so this is an unbiased pixel
+    sample that divides the cost by k^2). ``time_bin_us``: bin of the rate-over-time
+    statistic. ``grid_px``: cell of the coarse rate map (simulated pixels).
+    ``intensity_bins``: log-intensity quantile bins. ``static_contrast``: a pixel whose
+    log-intensity range over the frames stays below this is *static*. ``significance``:
+    an effect is named missing only if its held-out gain exceeds this many standard
+    deviations of the discrepancy between seeds; ``min_relative_gain``: and this fraction
+    of the held-out discrepancy. ``max_effects``: forward selection stops after this many.
+    ``search_points``: grid points of each 1-D parameter scan (then golden-section
+    refinement, ``refine_steps`` iterations). ``max_lag_us``: range of the latency
+    cross-correlation. ``max_sim_steps``: budget of simulated pixel-frames; the pixel
+    stride is raised automatically until the interpolated recording fits it (0 = off).
+    ``max_upsample``: cap of ``interpolate.max_upsample`` for the calibration (real frames
+    carry sensor noise that keeps the log-step bound from ever being met; 0 = no cap).
+    ``candidates``: the left-out effects to test (names of :data:`rdnet.calib.effects.EFFECTS`;
+    empty = all of them).
+    """
+
+    segments: int = 6
+    seeds: int = 3
+    pixel_stride: int = 1
+    time_bin_us: int = 2000
+    grid_px: int = 8
+    intensity_bins: int = 6
+    static_contrast: float = 0.15
+    significance: float = 3.0
+    min_relative_gain: float = 0.05
+    max_effects: int = 3
+    search_points: int = 7
+    refine_steps: int = 5
+    max_lag_us: int = 20000
+    max_sim_steps: int = 25_000_000
+    max_upsample: int = 16
+    candidates: Tuple[str, ...] = ()
+
+    def __post_init__(self):
+        if self.segments < 2:
+            raise ConfigError("calibrate.segments", f"must be >= 2 (fit and held-out), got {self.segments}")
+        if self.seeds < 2:
+            raise ConfigError("calibrate.seeds", f"must be >= 2 (the seed spread is the noise scale), got {self.seeds}")
+        for key in ("pixel_stride", "time_bin_us", "grid_px", "intensity_bins", "search_points"):
+            positive(f"calibrate.{key}", getattr(self, key), allow_zero=False)
+        for key in ("static_contrast", "significance", "min_relative_gain", "max_effects",
+                    "refine_steps", "max_lag_us", "max_sim_steps", "max_upsample"):
+            positive(f"calibrate.{key}", getattr(self, key))
+        object.__setattr__(self, "candidates", tuple(self.candidates))
+        from rdnet.calib.effects import EFFECTS
+        for name in self.candidates:
+            if name not in EFFECTS:
+                raise ConfigError("calibrate.candidates", f"unknown effect {name!r}; known: {', '.join(EFFECTS)}")
+        if self.search_points < 3:
+            raise ConfigError("calibrate.search_points", f"must be >= 3, got {self.search_points}")

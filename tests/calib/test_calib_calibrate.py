@@ -1,0 +1,84 @@
+"""End-to-end calibration on a small concealed case: hot pixels hidden in shot noise are
+named with their parameters; the report schema and files."""
+import dataclasses
+import json
+
+import pytest
+
+from rdnet.calib.calibrate import calibrate, finding
+from rdnet.calib.effects import EFFECTS, absent_effects
+from rdnet.calib.proof import case_metrics
+from rdnet.calib.report import write_report
+from rdnet.config import from_dict
+from rdnet.sim.settings import DegradeConfig, SensorConfig
+
+import calib_cases
+from calib_cases import CFG, HOT, INTERP, SENSOR
+
+
+@pytest.fixture(scope="module")
+def hot_recording():
+    return calib_cases.hot_recording()
+
+
+
+
+@pytest.fixture(scope="module")
+def hot_cal(hot_recording):
+    rec, truth = hot_recording
+    # a subset of the candidates keeps the test fast: the effects that also act on the
+    # noise floor or the per-pixel rate spread, i.e. the ones hot pixels could be confused with
+    cfg = dataclasses.replace(CFG, candidates=("threshold_mismatch", "leak_events", "hot_pixels",
+                                               "timestamp_jitter"))
+    return calibrate(rec, SENSOR, DegradeConfig(**HOT.base), cfg, seed=0, interpolate=INTERP,
+                     source="hot.h5"), truth
+
+
+def test_concealment_matches_the_base_count(hot_recording):
+    _, truth = hot_recording
+    assert abs(truth["count"] - truth["base_count"]) <= 0.01 * truth["base_count"]
+    # the hot pixels replace part of the base's noise: the true noise rate is lower
+    assert truth["degrade"]["shot_noise_hz"] < HOT.base["shot_noise_hz"]
+
+
+def test_hot_pixels_named_with_parameters(hot_cal):
+    cal, truth = hot_cal
+    m = case_metrics(HOT, cal.report, truth)
+    assert m["named"][0] == "hot_pixels" and m["rank"] == 1
+    assert m["param_max_rel_error"] <= 0.25, m["param_rel_error"]
+    assert m["heldout_after"] < 0.8 * m["heldout_before"]
+    hot = next(e for e in cal.report["effects"] if e["name"] == "hot_pixels")
+    assert hot["confidence"] > 0.5
+    assert "hot pixels" in finding(cal.report)
+
+
+def test_report_schema_and_files(hot_cal, tmp_path):
+    cal, _ = hot_cal
+    paths = write_report(cal, tmp_path / "out")
+    names = {p.name for p in paths}
+    assert {"report.json", "report.md", "mismatch_maps.png", "statistics.png", "effect_hot_pixels.png"} <= names
+    assert not list((tmp_path / "out").glob("*.tmp"))
+    r = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert r["recording"] == "hot.h5"
+    for key in ("base_config", "fitted_config"):
+        assert set(r[key]) == {"sensor", "degrade"}
+        from_dict(SensorConfig, r[key]["sensor"], "sensor")            # loadable back
+        from_dict(DegradeConfig, r[key]["degrade"], "degrade")
+    assert r["fitted_config"]["degrade"]["hot_pixel_hz"] > 0
+    assert r["base_config"]["degrade"]["hot_pixel_hz"] == 0
+    expected = {e.name for e in absent_effects(DegradeConfig(**HOT.base))}
+    assert {e["name"] for e in r["effects"]} == expected        # all, the untested ones too
+    untested = [e for e in r["effects"] if e["name"] == "bandwidth"][0]
+    assert not untested["missing"] and untested["confidence"] == 0.0
+    for e in r["effects"]:
+        assert set(e) >= {"name", "missing", "parameters", "where", "evidence", "confidence"}
+        assert e["name"] in EFFECTS and isinstance(e["missing"], bool)
+        assert 0.0 <= e["confidence"] <= 1.0
+        assert set(e["parameters"]) <= set(EFFECTS[e["name"]].keys)
+        assert isinstance(e["where"], str) and isinstance(e["evidence"], str)
+    d = r["discrepancy"]
+    assert set(d) >= {"metric", "fit_before", "fit_after", "heldout_before", "heldout_after"}
+    assert isinstance(d["metric"], str) and all(isinstance(d[k], float) for k in
+                                                ("fit_before", "fit_after", "heldout_before", "heldout_after"))
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert md.splitlines()[2].startswith("The simulator is missing hot pixels")

@@ -1,0 +1,170 @@
+"""Statistics, discrepancy and event-frame consistency on known synthetic inputs."""
+import numpy as np
+import pytest
+
+from rdnet.calib import stats as st
+from rdnet.calib.consistency import consistency
+from rdnet.calib.context import build_context, subsample_events
+from rdnet.calib.settings import CalibrateConfig
+from rdnet.errors import ConfigError, FormatError
+from rdnet.events.core import Events
+from rdnet.events.recording import Frames, Recording
+from rdnet.sim.interpolate import InterpolateConfig
+
+NONE = InterpolateConfig(method="none")
+H = W = 16
+STEP = 10_000            # frame period, us
+N_FR = 11                # frames at 0 .. 100 ms
+
+
+def _frames():
+    k = np.arange(N_FR, dtype=np.float32)[:, None, None]
+    img = np.full((N_FR, H, W), 0.5, np.float32)
+    # right half: log intensity (eps = 0.01) rises by 0.4 per frame
+    img[:, :, W // 2:] = (0.02 * np.exp(0.4 * k) - 0.01) * np.ones((1, H, W // 2), np.float32)
+    return Frames(img, np.arange(N_FR, dtype=np.int64) * STEP, np.zeros(N_FR, np.int64))
+
+
+def _events():
+    t1 = np.arange(0, 100_000, 1000)                 # static pixel (0, 0): ON every 1 ms
+    t2 = np.arange(5000, 100_000, 10_000)            # moving pixel (12, 3): OFF every 10 ms
+    t = np.concatenate([t1, t2])
+    x = np.concatenate([np.zeros_like(t1), np.full_like(t2, 12)])
+    y = np.concatenate([np.zeros_like(t1), np.full_like(t2, 3)])
+    p = np.concatenate([np.ones_like(t1), np.zeros_like(t2)])
+    return Events.from_columns(t, x, y, p, W, H, sort=True)
+
+
+@pytest.fixture(scope="module")
+def ctx():
+    rec = Recording(W, H, events=_events(), frames=_frames())
+    return build_context(rec, CalibrateConfig(segments=2, time_bin_us=1000, grid_px=8, intensity_bins=4),
+                         0.01, interpolate=NONE)
+
+
+def test_context_window_segments_static(ctx):
+    assert (ctx.t0, ctx.t1) == (0, 99_001)
+    assert ctx.segments.tolist() == [[0, 49_500], [49_500, 99_001]] or ctx.segments[0, 0] == 0
+    assert ctx.fit == (0,) and ctx.held == (1,)
+    assert ctx.static[:, : W // 2].all() and not ctx.static[:, W // 2:].any()
+    # occupancy: every pixel-second of the window is in some intensity bin
+    assert ctx.occupancy.sum() == pytest.approx(H * W * (ctx.t1 - ctx.t0) * 1e-6, rel=1e-9)
+    assert ctx.sim_images.shape == (N_FR, H, W)
+
+
+def test_summary_and_aggregate_known_values(ctx):
+    s = st.summarize(ctx.real, ctx)
+    assert s.pix.sum() == 110
+    a = st.aggregate(s, ctx, [0, 1])
+    T = (ctx.t1 - ctx.t0) * 1e-6
+    assert a["pixel_rate"][0, 0] == pytest.approx(100 / T)
+    assert a["pixel_rate"][3, 12] == pytest.approx(10 / T)
+    assert a["static_rate"] == pytest.approx(100 / T / (H * W // 2))
+    assert a["static_on_fraction"] == pytest.approx(101 / 102)
+    assert a["on_fraction"] == pytest.approx(1 / 12)
+    # intervals: 99 of 1 ms (log10 = 3.0) and 9 of 10 ms (log10 = 4.0)
+    b3 = np.searchsorted(st.IEI_EDGES, 3.0, side="right")
+    b4 = np.searchsorted(st.IEI_EDGES, 4.0, side="right")
+    assert a["iei_count"][b3] == 99 and a["iei_count"][b4] == 9 and a["iei_count"].sum() == 108
+    # rate over time (1 ms bins, the last one 1001 us): rate x width gives every event back
+    assert (a["rate_time"] * np.diff(ctx.time_edges) * 1e-6).sum() == pytest.approx(110)
+    # coarse 8x8 map: the top-left cell holds pixel (0, 0)
+    assert a["rate_map"][0, 0] == pytest.approx(100 / T / 64)
+    # one segment only: about half the events
+    f = st.aggregate(s, ctx, ctx.fit)
+    assert f["count"] + st.aggregate(s, ctx, ctx.held)["count"] == 110
+
+
+def test_band_means():
+    assert st.band_means(np.arange(10.0), (0.0, 0.5, 1.0)).tolist() == [2.0, 7.0]
+    assert st.band_means(np.arange(1000.0), (0.99, 1.0)).tolist() == [994.5]
+    assert st.band_means(np.array([]), (0.0, 1.0)).tolist() == [0.0]
+
+
+def test_xcorr_lag_recovers_shift():
+    rng = np.random.default_rng(0)
+    a = np.convolve(rng.random(400), np.ones(5) / 5, "same")
+    b = np.roll(a, 7)
+    mask = np.ones(400, bool)
+    assert st.xcorr_lag_us(a, b, mask, 1000.0, 20000.0) == pytest.approx(7000.0, abs=200)
+    assert st.xcorr_lag_us(b, a, mask, 1000.0, 20000.0) == pytest.approx(-7000.0, abs=200)
+    assert st.xcorr_lag_us(a, a, mask, 1000.0, 20000.0) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_distances_zero_for_identical_and_grow_with_mismatch(ctx):
+    s = st.summarize(ctx.real, ctx)
+    a = st.aggregate(s, ctx, [0, 1])
+    d = st.distances(a, a, ctx)
+    assert set(d) == set(st.STATISTICS)
+    assert all(v == pytest.approx(0.0, abs=1e-12) for v in d.values())
+    # flip every polarity: the polarity statistics move, the rate map does not
+    arr = ctx.real.array.copy()
+    arr["p"] = 1 - arr["p"]
+    b = st.aggregate(st.summarize(Events(arr, W, H), ctx), ctx, [0, 1])
+    d2 = st.distances(b, a, ctx)
+    assert d2["static_on_fraction"] > 1.0 and d2["on_fraction"] > 0.5
+    assert d2["rate_map"] == pytest.approx(0.0) and d2["iei"] == pytest.approx(0.0)
+    total, terms = st.discrepancy(b, a, ctx)
+    assert total == pytest.approx(sum(terms.values()))
+    # a 3 ms delay shows as a lag
+    arr = ctx.real.array.copy()
+    arr["t"] += 3000
+    c = st.aggregate(st.summarize(Events(arr, W, H), ctx), ctx, [0, 1])
+    assert st.distances(a, c, ctx)["lag"] > 0.0
+
+
+def test_subsample_events():
+    ev = _events()
+    sub = subsample_events(ev, 4)
+    assert (sub.width, sub.height) == (4, 4)
+    assert len(sub) == 100 and (sub.x == 0).all()      # (12, 3): y=3 is not sampled
+
+
+def test_consistency_exact_events_give_r2_one():
+    # column x of the right half rises by m = 1 + x % 3 thresholds (0.2) per frame and
+    # gets m ON events per frame interval
+    k = np.arange(N_FR, dtype=np.float64)[:, None, None]
+    m = np.zeros((1, H, W))
+    m[..., W // 2:] = 1 + np.arange(W // 2, W) % 3
+    img = (0.02 * np.exp(0.2 * m * k) - 0.01 * (m > 0) + 0.5 * (m == 0)).astype(np.float32)
+    fr = Frames(img, np.arange(N_FR, dtype=np.int64) * STEP, np.zeros(N_FR, np.int64))
+    ts, xs, ys = [], [], []
+    for i in range(N_FR - 1):
+        for x in range(W // 2, W):
+            n = 1 + x % 3
+            for y in range(H):
+                ts += [i * STEP + 1000 * (j + 1) for j in range(n)]; xs += [x] * n; ys += [y] * n
+    ts.append(N_FR * STEP); xs.append(0); ys.append(0)       # so the window covers the last frame
+    ev = Events.from_columns(np.array(ts), np.array(xs), np.array(ys), np.ones(len(ts), np.uint8), W, H, sort=True)
+    c = build_context(Recording(W, H, events=ev, frames=fr), CalibrateConfig(segments=2), 0.01, interpolate=NONE)
+    out = consistency(c.real, c, 0.2, 0.2)
+    assert out["active"] == (N_FR - 2) * H * W // 2      # the first interval starts before the events
+    assert out["r2"] == pytest.approx(1.0, abs=1e-4)
+    assert out["correlation"] == pytest.approx(1.0, abs=1e-6)
+    assert out["slope"] == pytest.approx(1.0, abs=1e-4)
+    # thresholds twice too large: slope 1/2, R^2 drops, correlation does not
+    bad = consistency(c.real, c, 0.4, 0.4)
+    assert bad["slope"] == pytest.approx(0.5, abs=1e-4) and bad["r2"] < 0.5
+    assert bad["correlation"] == pytest.approx(1.0, abs=1e-6)
+
+
+def test_bad_recordings_raise_clear_errors():
+    fr, ev = _frames(), _events()
+    cfg = CalibrateConfig(segments=2)
+    with pytest.raises(FormatError, match="no frames"):
+        build_context(Recording(W, H, events=ev), cfg, 0.01, interpolate=NONE)
+    with pytest.raises(FormatError, match="no events"):
+        build_context(Recording(W, H, frames=fr), cfg, 0.01, interpolate=NONE)
+    late = ev.array.copy()
+    late["t"] += 10_000_000
+    with pytest.raises(FormatError, match="overlap"):
+        build_context(Recording(W, H, events=Events(late, W, H), frames=fr), cfg, 0.01, interpolate=NONE)
+
+
+def test_config_checks():
+    with pytest.raises(ConfigError, match="calibrate.segments"):
+        CalibrateConfig(segments=1)
+    with pytest.raises(ConfigError, match="calibrate.seeds"):
+        CalibrateConfig(seeds=1)
+    with pytest.raises(ConfigError, match="calibrate.candidates"):
+        CalibrateConfig(candidates=("gremlins",))
