@@ -18,8 +18,6 @@ are stored, so loading a checkpoint never executes code.
 """
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -100,17 +98,11 @@ def make_checkpoint(model: nn.Module, task: str, model_args: Mapping, *, config:
 
 def save_checkpoint(path: str | Path, checkpoint: Mapping) -> Path:
     """Write ``checkpoint`` to ``path`` atomically (temp file + os.replace)."""
+    from rdnet.events.io._common import atomic_output
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            torch.save(dict(checkpoint), f)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_output(path) as tmp:
+        torch.save(dict(checkpoint), tmp)
     return path
 
 
