@@ -18,7 +18,7 @@ import numpy as np
 
 from rdnet.calib.consistency import consistency
 from rdnet.calib.context import CalibContext, build_context
-from rdnet.calib.effects import EFFECTS, absent_effects, apply
+from rdnet.calib.effects import absent_effects, apply
 from rdnet.calib.fit import FitResult, Objective, SimulateFn, calibrate_fit
 from rdnet.calib.locate import residuals, where
 from rdnet.calib.settings import CalibrateConfig

@@ -26,7 +26,7 @@ import numpy as np
 
 from rdnet.calib import stats as st
 from rdnet.calib.context import CalibContext
-from rdnet.calib.effects import EFFECTS, OFF, THRESHOLD_SCALE, Effect, Param, absent_effects, apply, present_effects
+from rdnet.calib.effects import OFF, THRESHOLD_SCALE, Effect, Param, absent_effects, apply, present_effects
 from rdnet.events.core import Events
 from rdnet.sim.effects import needs_rng
 from rdnet.sim.settings import DegradeConfig, SensorConfig
@@ -188,7 +188,7 @@ def _around(v: float, factor: float, p: Param) -> tuple[float, float]:
 
 def _guess(obj: Objective, values: dict, effect: Effect) -> dict | None:
     """A first guess for effects whose parameters can be read off the statistics
-    (hot pixels: excess of the per-pixel rate tail of static pixels; latency: the rate
+    (hot pixels: pixels whose net ON - OFF rate exceeds any simulated one; latency: the rate
     cross-correlation lag; shot noise / leak: the excess (ON - OFF for leak) event rate
     of static pixels); None = use the grid."""
     ctx = obj.ctx
@@ -223,14 +223,15 @@ def _guess(obj: Objective, values: dict, effect: Effect) -> dict | None:
         v[p.key] = float(np.clip(excess, p.lo, p.hi))
         return v
     if effect.name == "hot_pixels":
-        where = st.tail_pixels(ctx)
-        sim = obj.stats_all(values, obj.seeds[0])["pixel_rate"].ravel()[where]
-        real = obj.real_all["pixel_rate"].ravel()[where]
+        sim = obj.stats_all(values, obj.seeds[0])["net_rate"].ravel()
+        real = obj.real_all["net_rate"].ravel()
         top = np.sort(sim)[-max(1, sim.size // 1000):]
         thresh = 2.0 * float(top.mean()) + 1.0
         hot = real[real > thresh]
-        if hot.size == 0:
-            return None
+        for _ in range(3):          # drop busy scene pixels: hot pixels share one rate
+            if hot.size == 0:
+                return None
+            hot = real[real > max(thresh, 0.5 * float(np.median(hot)))]
         v = dict(values)
         v["hot_pixel_fraction"] = float(np.clip(hot.size / real.size, 0.0005, 0.05))
         v["hot_pixel_hz"] = float(np.clip(np.median(hot) - float(np.mean(sim)), 3.0, 3000.0))
@@ -289,7 +290,7 @@ def fit_effect(obj: Objective, values: dict, effect: Effect) -> dict:
     # (e.g. jitter smearing out a latency): refit them with it
     present = present_params(obj)
     if present:
-        v = refine(obj, v, present, rounds=1, steps=cfg.refine_steps, factor=4.0)
+        v = refine(obj, v, present, rounds=1, steps=cfg.refine_steps + 1, factor=8.0)
     return refine(obj, v, [THRESHOLD_SCALE] + list(effect.params) + present, rounds=1,
                   steps=max(3, cfg.refine_steps - 1), factor=1.5)
 
@@ -319,13 +320,17 @@ def _gain(before: Evaluation, after: Evaluation) -> tuple[float, float]:
     return gain, float(max(seed_std, SPREAD_FLOOR * before.held_mean))
 
 
-def score(cand: Candidate, before: Evaluation, cfg, ablated: Evaluation | None = None) -> Candidate:
+def score(cand: Candidate, before: Evaluation, cfg, ablated: Evaluation | None = None,
+          reference: float | None = None) -> Candidate:
     """Held-out gain, its seed spread, significance and confidence.
 
     The gain is the smaller of the drop against ``before`` (the current config) and,
     when given, against ``ablated`` (the candidate's own fit with the effect switched
     off): an effect is credited only with what it adds itself, not with what its
-    re-fitted thresholds or configured effects would have gained anyway."""
+    re-fitted thresholds or configured effects would have gained anyway. The relative
+    gain is taken of ``reference`` (default: ``before``'s held-out discrepancy; the
+    forward selection passes the discrepancy after the basic refit, so a later effect
+    must explain a share of the original mismatch, not of a small remainder)."""
     after = cand.evaluation
     gain, spread = _gain(before, after)
     if ablated is not None:
@@ -335,7 +340,7 @@ def score(cand: Candidate, before: Evaluation, cfg, ablated: Evaluation | None =
     cand.gain, cand.spread = gain, spread
     cand.before_held = before.held_mean
     cand.ablated_held = ablated.held_mean if ablated is not None else float("nan")
-    cand.relative = cand.gain / max(before.held_mean, 1e-12)
+    cand.relative = cand.gain / max(before.held_mean if reference is None else reference, 1e-12)
     cand.z = cand.gain / max(cand.spread, 1e-9)
     cand.significant = bool(cand.z > cfg.significance and cand.relative > cfg.min_relative_gain)
     cand.term_gains = {k: float((before.held_terms[k] - after.held_terms[k]).mean())
@@ -387,7 +392,8 @@ def calibrate_fit(obj: Objective) -> FitResult:
         round_c = []
         for eff in remaining:
             v = fit_effect(obj, current, eff)
-            c = score(Candidate(eff, v, obj(v), round=rnd), cur_eval, cfg, obj(ablate(v, eff)))
+            c = score(Candidate(eff, v, obj(v), round=rnd), cur_eval, cfg, obj(ablate(v, eff)),
+                      reference=basic.held_mean)
             log.info("round %d %-19s gain %.4f (z %.1f, rel %.3f) %s", rnd, eff.name, c.gain, c.z,
                      c.relative, _fmt({p.key: v.get(p.key, 0.0) for p in eff.params}))
             round_c.append(c)

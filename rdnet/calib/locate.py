@@ -44,7 +44,7 @@ def residuals(sim: dict, real: dict, ctx: CalibContext) -> dict:
         "static_rate_hz": {"real": float(real["static_rate"]), "sim": float(sim["static_rate"])},
         "static_on_fraction": {"real": float(real["static_on_fraction"]), "sim": float(sim["static_on_fraction"])},
         "iei_below_1ms": {"real": iei_short_real, "sim": iei_short_sim},
-        "pixel_tail_hz": {"real": [float(v) for v in real["pixel_tail"]], "sim": [float(v) for v in sim["pixel_tail"]]},
+        "net_rate_tail_hz": {"real": [float(v) for v in real["pixel_tail"]], "sim": [float(v) for v in sim["pixel_tail"]]},
         "lag_us": float(lag),
         "worst_time_us": int(ctx.time_edges[k]),
     }
@@ -58,8 +58,8 @@ def where(effect: str, res: dict, ctx: CalibContext, values: dict) -> str:
         return (f"static pixels ({res['static_pixels']} of {ctx.n_pixels} sampled): rate {s['real']:.3g} Hz "
                 f"real vs {s['sim']:.3g} Hz sim, ON fraction {o['real']:.2f} vs {o['sim']:.2f}")
     if effect == "hot_pixels":
-        t = res["pixel_tail_hz"]
-        return (f"the highest per-pixel rates of the static pixels (top 0.2 %: {t['real'][-1]:.3g} Hz real vs {t['sim'][-1]:.3g} Hz sim), "
+        t = res["net_rate_tail_hz"]
+        return (f"the highest per-pixel net rates |ON - OFF| (top 0.2 %: {t['real'][-1]:.3g} Hz real vs {t['sim'][-1]:.3g} Hz sim), "
                 f"about {values.get('hot_pixel_fraction', 0) * 100:.2g} % of the pixels")
     if effect == "bandwidth":
         b = res["intensity_bins"][res["worst_intensity_bin"]]

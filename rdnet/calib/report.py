@@ -135,7 +135,7 @@ def _plot_statistic(ax, name: str, cal: Calibration) -> None:
             ax.plot(np.arange(len(s[name])), s[name], "o-", color=col, label=lab)
         ax.set_yscale("log")
         ax.set_xlabel("quantile band" + (f" {TAIL_BANDS}" if name == "pixel_tail" else ""))
-        ax.set_ylabel("mean rate (Hz)")
+        ax.set_ylabel("mean |ON - OFF| rate (Hz)" if name == "pixel_tail" else "mean rate (Hz)")
     elif name in ("static_rate", "static_on_fraction", "on_fraction"):
         keys = ["static_rate", "static_on_fraction", "on_fraction"]
         w = 0.25

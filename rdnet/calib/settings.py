@@ -23,7 +23,7 @@ class CalibrateConfig:
     log-intensity range over the frames stays below this is *static*. ``significance``:
     an effect is named missing only if its held-out gain exceeds this many standard
     deviations of the discrepancy between seeds; ``min_relative_gain``: and this fraction
-    of the held-out discrepancy. ``max_effects``: forward selection stops after this many.
+    of the held-out discrepancy left after the basic refit. ``max_effects``: forward selection stops after this many.
     ``search_points``: grid points of each 1-D parameter scan (then golden-section
     refinement, ``refine_steps`` iterations). ``max_lag_us``: range of the latency
     cross-correlation. ``max_sim_steps``: budget of simulated pixel-frames; the pixel

@@ -52,8 +52,12 @@ def test_context_window_segments_static(ctx):
     assert ctx.sim_images.shape == (N_FR, H, W)
 
 
-def test_summary_and_aggregate_known_values(ctx):
+def test_summary_and_aggregate_known_values(ctx, monkeypatch):
     s = st.summarize(ctx.real, ctx)
+    # the only active static pixel is the busiest: trimmed from the noise-floor statistics
+    a = st.aggregate(s, ctx, [0, 1])
+    assert a["static_rate"] == 0.0 and a["static_on_fraction"] == 0.5
+    monkeypatch.setattr(st, "STATIC_TRIM", 0.0)
     assert s.pix.sum() == 110
     a = st.aggregate(s, ctx, [0, 1])
     T = (ctx.t1 - ctx.t0) * 1e-6
@@ -69,7 +73,13 @@ def test_summary_and_aggregate_known_values(ctx):
     # rate over time (1 ms bins, the last one 1001 us): rate x width gives every event back
     assert (a["rate_time"] * np.diff(ctx.time_edges) * 1e-6).sum() == pytest.approx(110)
     # coarse 8x8 map: the top-left cell holds pixel (0, 0)
-    assert a["rate_map"][0, 0] == pytest.approx(100 / T / 64)
+    # coarse 8x8 map without each cell's busiest pixel: every cell here has at most one
+    assert not a["rate_map"].any()
+    extra = Events.from_columns(np.array([10, 20, 30]), np.array([1, 1, 1]), np.zeros(3), np.ones(3), W, H)
+    both = Events.from_columns(*(np.concatenate([ctx.real.array[k], extra.array[k]]) for k in "txyp"),
+                               W, H, sort=True)
+    b = st.aggregate(st.summarize(both, ctx), ctx, [0, 1])
+    assert b["rate_map"][0, 0] == pytest.approx(3 / T / 63)
     # one segment only: about half the events
     f = st.aggregate(s, ctx, ctx.fit)
     assert f["count"] + st.aggregate(s, ctx, ctx.held)["count"] == 110
@@ -91,7 +101,8 @@ def test_xcorr_lag_recovers_shift():
     assert st.xcorr_lag_us(a, a, mask, 1000.0, 20000.0) == pytest.approx(0.0, abs=1e-6)
 
 
-def test_distances_zero_for_identical_and_grow_with_mismatch(ctx):
+def test_distances_zero_for_identical_and_grow_with_mismatch(ctx, monkeypatch):
+    monkeypatch.setattr(st, "STATIC_TRIM", 0.0)
     s = st.summarize(ctx.real, ctx)
     a = st.aggregate(s, ctx, [0, 1])
     d = st.distances(a, a, ctx)

@@ -1,4 +1,4 @@
-"""Smoke test of the whole study graph: `dvc repro` end to end with minute sizes in a
+"""Smoke test of the study graph: `dvc repro report` (everything up to the report) with minute sizes in a
 temporary copy of the repo, then `dvc exp run -S degrade.threshold_sigma=...` reruns only
 the stages downstream of the degradation."""
 from __future__ import annotations
@@ -47,7 +47,7 @@ def test_dvc_repro_and_exp_run(tmp_path):
     _run(["git", "init", "-q"], repo, env)
     _run([str(DVC), "init", "-q"], repo, env)
     _run([str(DVC), "config", "core.analytics", "false"], repo, env)
-    _run([str(DVC), "repro"], repo, env)
+    _run([str(DVC), "repro", "report"], repo, env)
 
     rows = params["ablation"]["rows"]
     for rid in rows:
@@ -61,7 +61,7 @@ def test_dvc_repro_and_exp_run(tmp_path):
 
     _run(["git", "add", "-A"], repo, env)
     _run(["git", "commit", "-qm", "base"], repo, env)
-    out = _run([str(DVC), "exp", "run", "-S", "degrade.threshold_sigma=0.05"], repo, env)
+    out = _run([str(DVC), "exp", "run", "report", "-S", "degrade.threshold_sigma=0.05"], repo, env)
     ran = {line.split("'")[1] for line in out.splitlines() if line.startswith("Running stage '")}
     assert "simulate" in ran and "blur" in ran and any(s.startswith("evaluate@") for s in ran)
     assert "scenes" not in ran and "interpolate" not in ran

@@ -1,0 +1,92 @@
+"""``rdnet calibrate``: exit codes, clear errors on bad input, output files."""
+import json
+
+import numpy as np
+import pytest
+
+import rdnet.cli as cli
+from rdnet.events.core import Events
+from rdnet.events.io import write_recording
+from rdnet.events.recording import Recording
+
+import calib_cases
+
+
+@pytest.fixture(autouse=True)
+def _registered(monkeypatch):
+    if "calibrate" not in cli.COMMANDS:
+        monkeypatch.setattr(cli, "COMMANDS", list(cli.COMMANDS) + ["calibrate"])
+
+
+@pytest.fixture(scope="module")
+def rec():
+    return calib_cases.hot_recording()[0]
+
+
+PARAMS = """
+sensor: {threshold_on: 0.2, threshold_off: 0.2, log_eps: 0.01}
+degrade: {shot_noise_hz: 3.0}
+interpolate: {method: linear, max_upsample: 8}
+calibrate: {seeds: 3, search_points: 5, refine_steps: 3, candidates: [hot_pixels]}
+"""
+
+
+def _params(tmp_path):
+    p = tmp_path / "params.yaml"
+    p.write_text(PARAMS)
+    return p
+
+
+def _run(capsys, *argv):
+    rc = cli.main(["calibrate", *map(str, argv)])
+    return rc, capsys.readouterr()
+
+
+def test_cli_writes_report(rec, tmp_path, capsys):
+    path = tmp_path / "rec.h5"
+    write_recording(path, rec)
+    out = tmp_path / "out"
+    rc, cap = _run(capsys, path, "--out", out, "--params", _params(tmp_path), "--seed", 3, "--no-plots")
+    assert rc == 0, cap.err
+    r = json.loads((out / "report.json").read_text())
+    assert r["recording"] == str(path)
+    assert [e["name"] for e in r["effects"] if e["missing"]] == ["hot_pixels"]
+    assert r["setup"]["seeds"] == [3000, 3001, 3002]
+    assert (out / "report.md").read_text().startswith("# Sim-to-real calibration")
+    assert "hot pixels" in cap.out
+
+
+@pytest.mark.parametrize("what", ["no_frames", "no_events", "disjoint"])
+def test_cli_bad_recordings_exit_2(rec, tmp_path, capsys, what):
+    if what == "no_frames":
+        bad = Recording(rec.width, rec.height, events=rec.events)
+        msg = "no frames"
+    elif what == "no_events":
+        bad = Recording(rec.width, rec.height, frames=rec.frames)
+        msg = "no events"
+    else:
+        arr = rec.events.array.copy()
+        arr["t"] += 5_000_000
+        bad = Recording(rec.width, rec.height, events=Events(arr, rec.width, rec.height), frames=rec.frames)
+        msg = "overlap"
+    path = tmp_path / f"{what}.h5"
+    write_recording(path, bad)
+    rc, cap = _run(capsys, path, "--out", tmp_path / "o", "--params", _params(tmp_path))
+    assert rc == 2
+    assert msg in cap.err and "Traceback" not in cap.err
+    assert not (tmp_path / "o" / "report.json").exists()
+
+
+def test_cli_unknown_set_key_and_missing_file(rec, tmp_path, capsys):
+    path = tmp_path / "rec.h5"
+    write_recording(path, rec)
+    rc, cap = _run(capsys, path, "--out", tmp_path / "o", "--params", _params(tmp_path), "--set", "degrade.gremlins=1")
+    assert rc == 2 and "degrade.gremlins" in cap.err
+    rc, cap = _run(capsys, path, "--out", tmp_path / "o", "--params", _params(tmp_path), "--set", "calibrate.nope=1")
+    assert rc == 2 and "calibrate.nope" in cap.err
+    rc, cap = _run(capsys, path, "--out", tmp_path / "o", "--params", _params(tmp_path),
+                   "--set", "calibrate.candidates=[gremlins]")
+    assert rc == 2 and "calibrate.candidates" in cap.err
+    rc, cap = _run(capsys, tmp_path / "missing.h5", "--out", tmp_path / "o", "--params", _params(tmp_path))
+    assert rc == 2 and "missing.h5" in cap.err
+    assert not (tmp_path / "o").exists()
