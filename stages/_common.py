@@ -33,7 +33,6 @@ def run(main, p: argparse.ArgumentParser) -> None:
 
 
 def write_json(path: Path, data) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
-    tmp.replace(path)
+    """JSON with sorted keys, written atomically (rdnet's one atomic-write helper)."""
+    from rdnet.eval.report import write_text_atomic
+    write_text_atomic(path, json.dumps(data, indent=2, sort_keys=True) + "\n")

@@ -110,7 +110,8 @@ def test_randomize_details():
     d = draw_degrade(base, RandomizeConfig(), "test", np.random.default_rng(1))
     assert d.active() == ["onoff_ratio", "shot_noise_hz"]           # off stays off
     f = degrade_factors(d, base)
-    assert 1.0 <= f["onoff_ratio"] <= 1.5 and 1.0 <= f["shot_noise_hz"] <= 1.5
+    lo, hi = RandomizeConfig().test_scale                             # (1.0, 1.5)
+    assert lo <= f["onoff_ratio"] <= hi and lo <= f["shot_noise_hz"] <= hi
     only = draw_degrade(base, RandomizeConfig(keys=("shot_noise_hz",)), "train", np.random.default_rng(1))
     assert only.onoff_ratio == 2.0 and only.shot_noise_hz < 2.0
     assert draw_degrade(base, RandomizeConfig(enabled=False, train_scale=(1, 1), test_scale=(1, 1)),
