@@ -35,6 +35,7 @@ SECTIONS: dict[str, str] = {
     "model": "rdnet.train.config:ModelConfig",
     "train": "rdnet.train.config:TrainConfig",
     "ablation": "rdnet.study.rows:AblationConfig",
+    "study": "rdnet.study.config:StudyConfig",
     "calibrate": "rdnet.calib.settings:CalibrateConfig",
 }
 

@@ -8,12 +8,14 @@ import _common
 
 def main(args, params):
     from rdnet.study.report import sync_readme, write_report
-    order = list((params.get("ablation") or {}).get("rows", {}))
+    rows = (params.get("ablation") or {}).get("rows", {})
+    order = list(rows)
     if args.sync_readme:
         changed = sync_readme(Path("README.md"), (args.out / "ablation.md").read_text())
         print("README.md updated" if changed else "README.md already up to date")
         return
-    write_report(args.details, args.restoration, args.out, order)
+    write_report(args.details, args.restoration, args.out, order,
+                 checkpoints={rid: r.get("checkpoint") for rid, r in rows.items()})
     if args.samples:
         from rdnet.study.figures import sample_figure
         sample_figure(params, args.pairs, args.out / "samples.png")

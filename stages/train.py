@@ -1,5 +1,6 @@
-"""Stages `train_baseline@*`, `train_restore`, `train_deblur`: train one network
-(params: model, train). Resumes from OUT/last.pt when present."""
+"""Stages `train_baseline@<network>`, `train_restore`, `train_deblur`: train one network
+once per seed of `study.seeds` into OUT/seed<k>/ (params: model, train, study and the
+network's entry of `networks`). Each seed resumes from its last.pt when present."""
 from pathlib import Path
 
 import _common
@@ -7,16 +8,27 @@ import _common
 
 def main(args, params):
     from rdnet.config import section
-    from rdnet.train.loop import train
-    ck = train(args.task, section(params, "train"), section(params, "model"), args.train, args.out,
-               events=args.events, init_checkpoint=args.init, resume=True, progress=True)
-    print(f"wrote {ck}")
+    from rdnet.study.config import NetworkConfig, network
+    from rdnet.study.training import train_seeds
+    net = network(params, args.network) if args.network else NetworkConfig(task=args.task, events=args.events)
+    summary = train_seeds(net, section(params, "study"), section(params, "train"), section(params, "model"),
+                          args.train, args.out, init=args.init, progress=True)
+    print(f"trained {args.out} for seeds {summary['seeds']} in {summary['wall_s_total']:.0f} s "
+          f"({summary['parameters']:,} parameters)")
 
 
-p = _common.parser(__doc__)
-p.add_argument("--task", required=True)
-p.add_argument("--events", choices=["degraded", "undegraded"], default="degraded")
-p.add_argument("--train", type=Path, default=Path("data/pairs/train.h5"))
-p.add_argument("--init", type=Path, default=None, help="stage-1 checkpoint (task rdnet)")
-p.add_argument("--out", type=Path, required=True)
-_common.run(main, p)
+def _parser():
+    p = _common.parser(__doc__)
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--network", help="an entry of the `networks` section of params.yaml")
+    g.add_argument("--task", help="a training task (restore, rdnet, deblur, ...)")
+    p.add_argument("--events", choices=["degraded", "undegraded"], default="degraded", help="with --task")
+    p.add_argument("--train", type=Path, default=Path("data/pairs/train.h5"))
+    p.add_argument("--init", type=Path, default=None,
+                   help="starting weights: a network directory (seed by seed) or a .pt file")
+    p.add_argument("--out", type=Path, required=True)
+    return p
+
+
+if __name__ == "__main__":      # guarded: the seed workers (spawn) import this module
+    _common.run(main, _parser())

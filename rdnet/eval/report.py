@@ -88,13 +88,16 @@ def write_table(path: str | Path, rows: Mapping[str, Mapping],
 # --- figures --------------------------------------------------------------------------
 def plot_metric_bars(path: str | Path, rows: Mapping[str, Mapping], metric: str = "psnr",
                      ylabel: str = "PSNR (dB)") -> Path:
-    """Bar chart of one scalar metric per row (value printed on each bar); rows without
-    the metric are left out."""
+    """Bar chart of one scalar metric per row (value printed on each bar, the spread
+    ``<metric>_std`` over seeds as an error bar when present); rows without the metric
+    are left out."""
     names = [n for n in rows if metric in rows[n]]
     vals = [float(rows[n].get(metric, float("nan"))) for n in names]
+    errs = [float(rows[n].get(f"{metric}_std") or 0.0) for n in names]
     fig, ax = _figure(figsize=(max(4.0, 0.9 * len(names) + 1.5), 3.5))
     finite = [v for v in vals if math.isfinite(v)]
-    bars = ax.bar(range(len(names)), [v if math.isfinite(v) else 0.0 for v in vals], color="tab:blue")
+    bars = ax.bar(range(len(names)), [v if math.isfinite(v) else 0.0 for v in vals], color="tab:blue",
+                  yerr=errs if any(errs) else None, capsize=3)
     for b, v in zip(bars, vals):
         ax.annotate(f"{v:.2f}", (b.get_x() + b.get_width() / 2, b.get_height()),
                     ha="center", va="bottom", fontsize=8)

@@ -16,6 +16,8 @@ def sample_figure(params: dict, pairs_path: Path, out: Path, n: int = 4) -> Path
     with h5py.File(pairs_path, "r") as f:
         total = f["blurry"].shape[0]
     idx = np.linspace(0, total - 1, min(n, total)).astype(int)
-    res = predict("rdnet", row.checkpoint, pairs_path, "degraded", indices=idx.tolist(),
+    from rdnet.study.config import seed_checkpoint
+    seed = section(params, "study").seeds[0]
+    res = predict("rdnet", seed_checkpoint(row.checkpoint, seed), pairs_path, "degraded", indices=idx.tolist(),
                   batch_size=cfg.batch_size, device=cfg.device)
     return sample_grid(out, res["blurry"], res["voxel"], res["restored"], res["pred"], res["sharp"])

@@ -2,11 +2,14 @@
 
 A row names a method and its inputs::
 
-    rdnet:          {method: rdnet, checkpoint: models/rdnet/model.pt, events: degraded, paper_psnr: 37.33}
-    stcf:           {method: deblur, checkpoint: models/deblur_undegraded/model.pt, events: degraded,
+    rdnet:          {method: rdnet, checkpoint: models/rdnet, events: degraded, paper_psnr: 37.33}
+    stcf:           {method: deblur, checkpoint: models/deblur_undegraded, events: degraded,
                      filter: stcf}
 
-methods: ``deblur`` (DeblurNet fed ``events``), ``rdnet`` (stage 1 + 2), ``image_only``,
+``checkpoint`` is a network directory of the study (one ``seed<k>/model.pt`` per training
+seed, :mod:`rdnet.study.config`) or a single ``.pt`` file.
+methods: ``deblur`` (DeblurNet fed ``events``), ``deblurnet_matched`` (the DeblurNet
+widened to RDNet's parameter count), ``rdnet`` (stage 1 + 2), ``image_only``,
 ``edi`` (Pan et al. 2019 on the ``events`` voxels), ``blurry`` (the input itself).
 ``filter`` (deblur rows only) denoises the input events first: ``stcf`` (spatio-temporal
 correlation filter on the raw event stream, then re-voxelized) or ``gef`` (image-guided
@@ -41,7 +44,7 @@ class FilterConfig:
 
 @dataclass(frozen=True)
 class RowConfig:
-    method: Literal["deblur", "rdnet", "image_only", "edi", "blurry"]
+    method: Literal["deblur", "deblurnet_matched", "rdnet", "image_only", "edi", "blurry"]
     checkpoint: Optional[str] = None
     events: Literal["degraded", "undegraded"] = "degraded"
     filter: Optional[Literal["stcf", "gef"]] = None
@@ -50,7 +53,7 @@ class RowConfig:
     label: str = ""
 
     def __post_init__(self):
-        if self.method in ("deblur", "rdnet", "image_only") and not self.checkpoint:
+        if self.method in ("deblur", "deblurnet_matched", "rdnet", "image_only") and not self.checkpoint:
             raise ConfigError("ablation.rows.*.checkpoint", f"method {self.method} needs a checkpoint")
         if self.filter and self.method != "deblur":
             raise ConfigError("ablation.rows.*.filter", "filters apply to deblur rows only")
@@ -144,19 +147,58 @@ def evaluate_edi(pairs_path: Path, events: str, level_bins: int) -> dict:
             "per_sample": {"level": levels, **{k: v.tolist() for k, v in per.items()}}}
 
 
+def mean_over_seeds(results: list[dict]) -> dict:
+    """Merge the results of one row trained with several seeds: numbers of the same
+    place are averaged (lists element-wise, so ``by_level`` bins and per-sample values
+    are seed means), text is kept from the first. Structures must agree."""
+    first = results[0]
+    if isinstance(first, dict):
+        return {k: mean_over_seeds([r[k] for r in results]) for k in first}
+    if isinstance(first, list) and all(isinstance(r, list) and len(r) == len(first) for r in results):
+        return [mean_over_seeds([r[i] for r in results]) for i in range(len(first))]
+    if isinstance(first, bool) or not isinstance(first, (int, float)):
+        return first
+    vals = [float(r) for r in results]
+    if isinstance(first, int) and all(v == vals[0] for v in vals):
+        return first
+    return float(np.mean(vals))
+
+
+def seed_spread(values) -> float:
+    """Sample standard deviation (ddof 1) of per-seed values; 0 for a single seed."""
+    v = np.asarray(values, np.float64)
+    return float(np.std(v, ddof=1)) if v.size > 1 else 0.0
+
+
 def evaluate_ablation_row(cfg: AblationConfig, row_id: str, pairs_path: Path,
-                          events_dir: Path | None = None) -> dict:
-    """Metrics of one row on the test pairs: ``psnr``, ``ssim``, ``by_level``, ..."""
+                          events_dir: Path | None = None, seeds=(0,)) -> dict:
+    """Metrics of one row on the test pairs: ``psnr``, ``ssim``, ``by_level``, ...
+
+    Trained rows are scored once per training seed (the checkpoint of each seed,
+    :func:`rdnet.study.config.seed_checkpoint`): ``psnr``/``ssim`` are the means over
+    seeds, ``psnr_std``/``ssim_std`` the sample spread, ``psnr_seeds``/``ssim_seeds`` the
+    per-seed values, and the breakdowns the seed means. Untrained rows (EDI, the blurry
+    input) are deterministic and scored once (``seeds`` empty)."""
+    from rdnet.study.config import seed_checkpoint
     row = cfg.row(row_id)
     if row.method == "edi":
-        out = evaluate_edi(pairs_path, row.events, cfg.level_bins)
+        runs, used = [evaluate_edi(pairs_path, row.events, cfg.level_bins)], []
     else:
         from rdnet.eval.predict import evaluate_row
-        kind = {"deblur": "deblur"}.get(row.method, row.method)
         transform = voxel_filter(row.filter, pairs_path, events_dir, cfg.filters)
-        out = evaluate_row(kind, row.checkpoint, pairs_path, row.events, transform,
-                           batch_size=cfg.batch_size, device=cfg.device, level_bins=cfg.level_bins,
-                           progress=True)
+        used = list(seeds) if row.checkpoint else []
+        ckpts = [seed_checkpoint(row.checkpoint, s) for s in used] or [None]
+        runs = [evaluate_row(row.method, ck, pairs_path, row.events, transform, batch_size=cfg.batch_size,
+                             device=cfg.device, level_bins=cfg.level_bins, progress=True) for ck in ckpts]
+    out = mean_over_seeds(runs)
+    out["seeds"] = used
+    for key in ("psnr", "ssim"):
+        if key in runs[0]:
+            per_seed = [float(r[key]) for r in runs]
+            out[f"{key}_seeds"] = per_seed
+            out[f"{key}_std"] = seed_spread(per_seed)
+    if used:
+        out["checkpoint"] = [r.get("checkpoint") for r in runs]
     out["row"] = row_id
     out["filter"] = row.filter
     out["paper_psnr"] = row.paper_psnr
@@ -165,9 +207,11 @@ def evaluate_ablation_row(cfg: AblationConfig, row_id: str, pairs_path: Path,
 
 
 def restoration_table(cfg: AblationConfig, pairs_path: Path, events_dir: Path, rdnet_checkpoint: Path,
-                      methods=("degraded", "stcf", "gef", "rdnet")) -> dict:
+                      methods=("degraded", "stcf", "gef", "rdnet"), seeds=(0,)) -> dict:
     """Restoration metrics against the undegraded voxels, per method, overall and per
-    dominant degradation (threshold bias / bandwidth / noise ...)."""
+    dominant degradation (threshold bias / bandwidth / noise ...). RDNet's stage 1 is
+    scored per training seed (``rdnet_checkpoint``: a network directory or a ``.pt``
+    file) and reported as the seed mean with ``<metric>_std``."""
     from rdnet.eval import metrics as M
     from rdnet.eval.predict import predict
     import h5py
@@ -181,14 +225,22 @@ def restoration_table(cfg: AblationConfig, pairs_path: Path, events_dir: Path, r
     if "gef" in methods:
         restored["gef"] = voxel_filter("gef", pairs_path, events_dir, cfg.filters)(d, idx)
     if "rdnet" in methods:
-        restored["rdnet"] = predict("rdnet", rdnet_checkpoint, pairs_path, "degraded",
-                                    batch_size=cfg.batch_size, device=cfg.device)["restored"]
+        from rdnet.study.config import seed_checkpoint
+        restored["rdnet"] = [predict("rdnet", seed_checkpoint(rdnet_checkpoint, s), pairs_path, "degraded",
+                                     batch_size=cfg.batch_size, device=cfg.device)["restored"] for s in seeds]
     labels = M.dominant_degradation(degrade) if degrade else None
     out = {}
     for name, r in restored.items():
-        per = M.restoration_per_sample(r, u, d)
-        entry = {k: float(np.mean(v)) for k, v in per.items() if k != "mask_fraction"}
-        if labels is not None:
-            entry["by_degradation"] = M.group_means({k: per[k] for k in ("voxel_l1", "voxel_psnr")}, labels)
-        out[name] = entry
+        entries = []
+        for one in (r if isinstance(r, list) else [r]):
+            per = M.restoration_per_sample(one, u, d)
+            entry = {k: float(np.mean(v)) for k, v in per.items() if k != "mask_fraction"}
+            if labels is not None:
+                entry["by_degradation"] = M.group_means({k: per[k] for k in ("voxel_l1", "voxel_psnr")}, labels)
+            entries.append(entry)
+        out[name] = mean_over_seeds(entries)
+        if isinstance(r, list):
+            out[name]["seeds"] = list(seeds)
+            for key in ("voxel_l1", "voxel_psnr"):
+                out[name][f"{key}_std"] = seed_spread([e[key] for e in entries])
     return out

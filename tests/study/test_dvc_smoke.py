@@ -24,6 +24,7 @@ def _tiny_params(p: dict) -> dict:
     p["interpolate"].update(max_upsample=2)
     p["train"].update(iterations=3, batch_size=2, crop=16, log_every=1, ckpt_every=2)
     p["ablation"]["level_bins"] = 2
+    p["study"].update(seeds=[0, 1], parallel=2)      # two seeds, trained in two processes
     return p
 
 
@@ -54,10 +55,23 @@ def test_dvc_repro_and_exp_run(tmp_path):
         m = json.loads((repo / "metrics" / f"{rid}.json").read_text())
         assert {"psnr", "ssim"} <= set(m), rid
         assert 0 < m["psnr"] < 100 and -1 <= m["ssim"] <= 1
+        trained = "checkpoint" in rows[rid]
+        assert m["n_seeds"] == (2 if trained else 0), rid
+        if trained:      # the two seeds are different trainings: a spread is measured
+            d = json.loads((repo / "results" / "rows" / f"{rid}.json").read_text())
+            assert len(d["psnr_seeds"]) == 2 and m["psnr_std"] >= 0
+            assert abs(m["psnr"] - sum(d["psnr_seeds"]) / 2) < 1e-9
+    for net in params["networks"]:
+        summary = json.loads((repo / "models" / net / "summary.json").read_text())
+        assert [r["seed"] for r in summary["runs"]] == [0, 1]
+        factor = params["networks"][net].get("iterations_factor", 1)
+        assert all(r["iterations"] == round(3 * factor) for r in summary["runs"])
     rest = json.loads((repo / "metrics" / "restoration.json").read_text())
     assert set(rest) == {"degraded", "stcf", "gef", "rdnet"}
     assert all("voxel_l1" in v for v in rest.values())
     assert (repo / "results" / "ablation.md").read_text().count("| `") == len(rows)
+    bars = json.loads((repo / "results" / "plots" / "psnr_rows.json").read_text())
+    assert [b["row"] for b in bars] == list(rows)
 
     _run(["git", "add", "-A"], repo, env)
     _run(["git", "commit", "-qm", "base"], repo, env)

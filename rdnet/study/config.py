@@ -1,0 +1,75 @@
+"""Study-level settings: the ``study`` section (training seeds) and the ``networks``
+section (the trainings of the study, one ``train_baseline@<name>`` stage each).
+
+Every trained row of the ablation is trained once per seed of ``study.seeds`` (network
+initialisation, data order and crops change with the seed; the data set does not), so
+that a gap between rows can be told from training noise: rows report the mean and the
+sample standard deviation over seeds, and gaps the mean and spread of the *paired*
+per-seed differences.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal, Optional
+
+from rdnet.config import from_dict
+from rdnet.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """``seeds``: training seeds of every network (at least one; distinct).
+    ``parallel``: trainings run at once by a training stage (processes; each uses
+    ``train.threads`` torch threads). 2 fills the two cores of the embedded profile."""
+
+    seeds: tuple = (0, 1, 2)
+    parallel: int = 1
+
+    def __post_init__(self):
+        seeds = tuple(int(s) for s in self.seeds)
+        if not seeds:
+            raise ConfigError("study.seeds", "needs at least one seed")
+        if len(set(seeds)) != len(seeds):
+            raise ConfigError("study.seeds", f"seeds must be distinct, got {list(seeds)}")
+        if any(s < 0 for s in seeds):
+            raise ConfigError("study.seeds", "seeds must be >= 0")
+        object.__setattr__(self, "seeds", seeds)
+        if int(self.parallel) < 1:
+            raise ConfigError("study.parallel", f"must be >= 1, got {self.parallel}")
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """One training of the study (an entry of the ``networks`` section).
+
+    ``task``: a task of :data:`rdnet.train.loop.TASKS`; ``events``: the training events;
+    ``iterations_factor``: multiplies ``train.iterations`` (2 gives a network the
+    optimisation steps of both RDNet stages together: the equal-compute comparison)."""
+
+    task: Literal["restore", "deblur", "deblurnet_matched", "image_only", "rdnet"]
+    events: Literal["degraded", "undegraded"] = "degraded"
+    iterations_factor: float = 1.0
+
+    def __post_init__(self):
+        if not self.iterations_factor > 0:
+            raise ConfigError("networks.*.iterations_factor", f"must be > 0, got {self.iterations_factor}")
+
+
+def network(params: dict, name: str) -> NetworkConfig:
+    nets = params.get("networks") or {}
+    if name not in nets:
+        raise ConfigError(f"networks.{name}", f"unknown network; networks: {', '.join(nets) or 'none'}")
+    return from_dict(NetworkConfig, nets[name], f"networks.{name}")
+
+
+def seed_dir(run_dir: str | Path, seed: int) -> Path:
+    """Where the training of ``seed`` lives inside a network's output directory."""
+    return Path(run_dir) / f"seed{int(seed)}"
+
+
+def seed_checkpoint(checkpoint: str | Path, seed: int) -> Path:
+    """The checkpoint of ``seed``: ``checkpoint`` itself when it names a ``.pt`` file (one
+    model, the same for every seed), else ``<checkpoint>/seed<seed>/model.pt``."""
+    p = Path(checkpoint)
+    return p if p.suffix == ".pt" else seed_dir(p, seed) / "model.pt"

@@ -1,0 +1,78 @@
+"""Seeds of the study: config validation, checkpoint layout, seed means and paired gaps."""
+import json
+
+import numpy as np
+import pytest
+
+from rdnet.config import from_dict
+from rdnet.errors import ConfigError
+from rdnet.study.config import NetworkConfig, StudyConfig, network, seed_checkpoint
+from rdnet.study.report import ablation_markdown, network_compute, paired_gap, plot_data
+from rdnet.study.rows import mean_over_seeds, seed_spread
+
+
+def test_study_config_validates():
+    assert from_dict(StudyConfig, {"seeds": [2, 0, 1]}, "study").seeds == (2, 0, 1)
+    for bad in ({"seeds": []}, {"seeds": [0, 0]}, {"seeds": [-1]}, {"parallel": 0}):
+        with pytest.raises(ConfigError):
+            from_dict(StudyConfig, bad, "study")
+    with pytest.raises(ConfigError, match="networks.nope"):
+        network({"networks": {"a": {"task": "deblur"}}}, "nope")
+    with pytest.raises(ConfigError, match="iterations_factor"):
+        NetworkConfig(task="deblur", iterations_factor=0)
+
+
+def test_seed_checkpoint_layout(tmp_path):
+    assert seed_checkpoint("models/rdnet", 2).as_posix() == "models/rdnet/seed2/model.pt"
+    assert seed_checkpoint("some/model.pt", 2).as_posix() == "some/model.pt"
+
+
+def test_mean_over_seeds_averages_numbers_elementwise():
+    a = {"psnr": 20.0, "n": 5, "method": "deblur", "by_level": [{"level_bin": 1.0, "n": 3, "psnr": 19.0}]}
+    b = {"psnr": 22.0, "n": 5, "method": "deblur", "by_level": [{"level_bin": 1.0, "n": 3, "psnr": 23.0}]}
+    m = mean_over_seeds([a, b])
+    assert m == {"psnr": 21.0, "n": 5, "method": "deblur", "by_level": [{"level_bin": 1.0, "n": 3, "psnr": 21.0}]}
+    assert a["psnr"] == 20.0                      # inputs untouched
+    assert seed_spread([1.0, 2.0, 3.0]) == pytest.approx(1.0)
+    assert seed_spread([5.0]) == 0.0
+
+
+def test_paired_gap_uses_per_seed_differences():
+    # row a beats b by exactly 0.5 dB on every seed although the seeds scatter by 2 dB:
+    # the paired spread is 0, the unpaired one would hide the gap
+    a = {"psnr": 21.5, "seeds": [0, 1, 2], "psnr_seeds": [20.5, 22.5, 21.5]}
+    b = {"psnr": 21.0, "seeds": [0, 1, 2], "psnr_seeds": [20.0, 22.0, 21.0]}
+    g = paired_gap(a, b)
+    assert g["mean"] == pytest.approx(0.5) and g["std"] == pytest.approx(0.0, abs=1e-12)
+    assert g["positive"] == 3 and g["n"] == 3
+    c = {"psnr": 21.0, "seeds": [0, 1, 2], "psnr_seeds": [21.0, 20.0, 22.0]}
+    g2 = paired_gap(a, c)
+    assert g2["per_seed"] == pytest.approx([-0.5, 2.5, -0.5])
+    assert g2["p"] > 0.3                          # a noisy gap is not significant
+    # an untrained row (no seeds) against a trained one: difference of means
+    d = {"psnr": 20.0, "seeds": []}
+    assert paired_gap(a, d) == {"mean": 1.5, "std": None, "n": 1, "positive": 1, "p": None, "per_seed": []}
+
+
+def test_report_table_shows_spread_compute_and_gaps(tmp_path):
+    for name, init, wall in (("restore", None, 10.0), ("rdnet", str(tmp_path / "restore"), 30.0)):
+        d = tmp_path / name
+        d.mkdir()
+        runs = [{"seed": s, "wall_s": wall + s, "iterations": 100} for s in (0, 1)]
+        (d / "summary.json").write_text(json.dumps({"runs": runs, "init": init, "parameters": 1234}))
+    c = network_compute(str(tmp_path / "rdnet"))
+    assert c["train_s"] == pytest.approx(10.5 + 30.5) and c["iterations"] == 200 and c["parameters"] == 1234
+    assert network_compute("x/model.pt") is None and network_compute(None) is None
+    rows = {"degraded_train": {"method": "deblur", "events": "degraded", "psnr": 25.0, "psnr_std": 0.1,
+                               "ssim": 0.8, "ssim_std": 0.01, "seeds": [0, 1], "psnr_seeds": [24.9, 25.1],
+                               "by_level": [{"level_bin": 1.0, "psnr": 24.0}]},
+            "rdnet": {"method": "rdnet", "events": "degraded", "psnr": 25.5, "psnr_std": 0.3, "ssim": 0.81,
+                      "ssim_std": 0.02, "seeds": [0, 1], "psnr_seeds": [25.2, 25.8], "paper_psnr": 37.33,
+                      "by_level": [{"level_bin": 1.0, "psnr": 25.0}]}}
+    md = ablation_markdown(rows, {"degraded": {"voxel_l1": 1.0, "voxel_psnr": 10.0}}, {"rdnet": c})
+    assert "25.50 ± 0.30" in md and "1,234" in md and "41" in md and "1.0000" in md
+    assert "+0.50 ± 0.28" in md and "2/2" in md           # paired: diffs 0.3 and 0.7
+    bars, levels = plot_data(rows)
+    assert bars[1] == {"row": "rdnet", "psnr": 25.5, "psnr_std": 0.3}
+    assert levels == [{"level": 1.0, "degraded_train": 24.0, "rdnet": 25.0}]
+    assert np.isfinite([b["psnr"] for b in bars]).all()
