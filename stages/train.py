@@ -1,6 +1,7 @@
 """Stages `train_baseline@<network>`, `train_restore`, `train_deblur`: train one network
 once per seed of `study.seeds` into OUT/seed<k>/ (params: model, train, study and the
-network's entry of `networks`). Each seed resumes from its last.pt when present."""
+network's entry of `networks`). Each seed resumes from its last.pt when present.
+Run by `study.launcher`: `python`, or `torchrun --nproc_per_node=N` for data parallelism."""
 from pathlib import Path
 
 import _common
@@ -10,9 +11,12 @@ def main(args, params):
     from rdnet.config import section
     from rdnet.study.config import NetworkConfig, network
     from rdnet.study.training import train_seeds
+    from rdnet.train.distributed import cleanup, init_from_env
+    init_from_env(section(params, "train").device)      # under torchrun (study.launcher): join the group
     net = network(params, args.network) if args.network else NetworkConfig(task=args.task, events=args.events)
     summary = train_seeds(net, section(params, "study"), section(params, "train"), section(params, "model"),
                           args.train, args.out, init=args.init, progress=True)
+    cleanup()
     print(f"trained {args.out} for seeds {summary['seeds']} in {summary['wall_s_total']:.0f} s "
           f"({summary['parameters']:,} parameters)")
 

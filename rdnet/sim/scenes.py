@@ -23,7 +23,7 @@ import json
 import logging
 import math
 from dataclasses import dataclass
-from typing import Iterator, Literal
+from typing import Iterator, Literal, Optional
 
 import cv2
 import numpy as np
@@ -55,6 +55,12 @@ class ScenesConfig:
     amplitude of the fast shake; ``n_objects`` foreground objects per sequence moving at
     ``object_speed_px`` per frame; ``texture_fraction`` of the sequences get a procedural
     background instead of an image; ``supersample``: render factor for antialiasing.
+
+    ``source: gopro`` reads real sharp sequences instead of rendering (the ``paper``
+    profile): ``gopro_root`` holds ``train/<sequence>/`` and ``test/<sequence>/`` image
+    folders (GOPRO_Large_all layout, or GOPRO_Large with ``sharp/`` subfolders), read at
+    ``fps_hz`` (240 for GOPRO); ``n_train``/``n_test`` cap the sequences per split (0: all)
+    and ``n_frames`` the frames per sequence; the motion keys are unused.
     """
 
     n_train: int = 16
@@ -73,8 +79,15 @@ class ScenesConfig:
     texture_fraction: float = 0.25
     supersample: int = 2
     seed: int = 0
+    source: Literal["embedded", "gopro"] = "embedded"
+    gopro_root: Optional[str] = None
 
     def __post_init__(self):
+        if self.source == "gopro" and not self.gopro_root:
+            raise ConfigError("scenes.gopro_root", "source gopro needs the path of the GOPRO folder "
+                              "(with train/ and test/ sequence folders)")
+        if self.source not in ("embedded", "gopro"):
+            raise ConfigError("scenes.source", f"must be embedded or gopro, got {self.source!r}")
         for k in ("n_train", "n_test"):
             if getattr(self, k) < 0:
                 raise ConfigError(f"scenes.{k}", f"must be >= 0, got {getattr(self, k)}")

@@ -21,10 +21,13 @@ from rdnet.errors import ConfigError
 class StudyConfig:
     """``seeds``: training seeds of every network (at least one; distinct).
     ``parallel``: trainings run at once by a training stage (processes; each uses
-    ``train.threads`` torch threads). 2 fills the two cores of the embedded profile."""
+    ``train.threads`` torch threads). ``launcher``: the command that runs the training
+    stages (dvc.yaml ``${study.launcher}``): ``python``, or for several GPUs
+    ``torchrun --standalone --nproc_per_node=8`` (then ``parallel`` must be 1)."""
 
     seeds: tuple = (0, 1, 2)
     parallel: int = 1
+    launcher: str = "python"
 
     def __post_init__(self):
         seeds = tuple(int(s) for s in self.seeds)
@@ -35,6 +38,8 @@ class StudyConfig:
         if any(s < 0 for s in seeds):
             raise ConfigError("study.seeds", "seeds must be >= 0")
         object.__setattr__(self, "seeds", seeds)
+        if not self.launcher.strip():
+            raise ConfigError("study.launcher", "must name a command (python or torchrun ...)")
         if int(self.parallel) < 1:
             raise ConfigError("study.parallel", f"must be >= 1, got {self.parallel}")
 

@@ -42,17 +42,45 @@ def sequences(root: Path, split: str) -> list[Path]:
     return files
 
 
+def gopro_split(cfg, split: str):
+    """``(attrs, Frames)`` of the GOPRO sequences of ``split`` (``scenes.source: gopro``):
+    every sequence folder of ``<gopro_root>/<split>`` in name order, at most ``n_<split>``
+    of them (0: all), at most ``n_frames`` frames each, linear intensity, grey unless
+    ``color``. FormatError naming the folder when the layout is not GOPRO's."""
+    from rdnet.errors import FormatError
+    from rdnet.sim.interpolate import luminance
+    from rdnet.sim.sources import open_frames
+    root = Path(cfg.gopro_root) / split
+    if not root.is_dir():
+        raise FormatError(root, None, "no such folder: scenes.gopro_root must hold train/ and test/ "
+                          "sequence folders (GOPRO_Large_all layout)")
+    folders = sorted(q for q in root.iterdir() if q.is_dir())
+    if not folders:
+        raise FormatError(root, None, "no sequence folders")
+    cap = cfg.count(split)
+    for q in folders[:cap] if cap > 0 else folders:
+        fr = open_frames(q, max_frames=cfg.n_frames, fps_hz=cfg.fps_hz)
+        if not cfg.color and fr.images.ndim == 4:
+            fr = Frames(luminance(fr.images).astype(np.float32), fr.t_us, fr.exposure_us)
+        yield {"source": "gopro", "sequence": q.name}, fr
+
+
 def render_scenes(params: dict, out: Path) -> dict:
-    """Render the embedded sequences of both splits into ``out/<split>/seq_XXX.h5``."""
+    """The sharp sequences of both splits into ``out/<split>/seq_XXX.h5``: rendered
+    (embedded default) or read from GOPRO (``scenes.source``)."""
     cfg = section(params, "scenes")
     stats = {}
     for split in SPLITS:
         (out / split).mkdir(parents=True, exist_ok=True)
         n = 0
-        for i, (spec, frames) in enumerate(tqdm(render_split(cfg, split), total=cfg.count(split),
-                                                desc=f"scenes {split}", disable=None)):
+        if cfg.source == "gopro":
+            items, total = gopro_split(cfg, split), None
+        else:
+            items = ((spec.attrs(), frames) for spec, frames in render_split(cfg, split))
+            total = cfg.count(split)
+        for i, (attrs, frames) in enumerate(tqdm(items, total=total, desc=f"scenes {split}", disable=None)):
             rec = Recording(frames.width, frames.height, frames=frames, sensor="rdnet-scene")
-            write_recording(out / split / f"seq_{i:03d}.h5", rec, attrs=spec.attrs())
+            write_recording(out / split / f"seq_{i:03d}.h5", rec, attrs=attrs)
             n += 1
         stats[split] = n
     return stats

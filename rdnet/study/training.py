@@ -45,10 +45,12 @@ def _train_one(task, train_cfg, model_cfg, train_path, out, events, init, progre
     if record_path.is_file() and wall < 1.0:      # already complete: keep the measured time
         return json.loads(record_path.read_text())
     from rdnet.eval.report import write_text_atomic
+    from rdnet.train.distributed import dist_info
     record = {"seed": train_cfg.seed, "task": task, "events": events, "iterations": train_cfg.iterations,
               "wall_s": round(wall, 2), "parameters": n_params, "checkpoint": str(ck),
-              "threads": train_cfg.threads}
-    write_text_atomic(record_path, json.dumps(record, indent=2) + "\n")
+              "threads": train_cfg.threads, "processes": dist_info().world_size}
+    if dist_info().rank == 0:
+        write_text_atomic(record_path, json.dumps(record, indent=2) + "\n")
     return record
 
 
@@ -57,7 +59,11 @@ def train_seeds(net: NetworkConfig, study: StudyConfig, train_cfg, model_cfg, tr
     """Train ``net`` for every seed of ``study`` into ``out_dir/seed<k>``; ``init`` (a
     network directory or a ``.pt`` file) gives each seed's starting weights, seed by seed
     (:func:`~rdnet.study.config.seed_checkpoint`). Returns and writes ``summary.json``."""
+    from rdnet.errors import ConfigError
+    from rdnet.train.distributed import dist_info
     out_dir = Path(out_dir)
+    if dist_info().world_size > 1 and study.parallel > 1:
+        raise ConfigError("study.parallel", "must be 1 under torchrun (the processes are data-parallel ranks)")
     jobs = []
     for s in study.seeds:
         cfg = _seed_train_cfg(train_cfg, net, s)
@@ -80,5 +86,6 @@ def train_seeds(net: NetworkConfig, study: StudyConfig, train_cfg, model_cfg, tr
                "wall_s_total": round(sum(r["wall_s"] for r in records), 2),
                "parameters": records[0]["parameters"]}
     from rdnet.eval.report import write_text_atomic
-    write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
+    if dist_info().rank == 0:
+        write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
     return summary
