@@ -11,7 +11,8 @@ seed, :mod:`rdnet.study.config`) or a single ``.pt`` file.
 methods: ``deblur`` (DeblurNet fed ``events``), ``deblurnet_matched`` (the DeblurNet
 widened to RDNet's parameter count), ``rdnet`` (stage 1 + 2), ``image_only``,
 ``edi`` (Pan et al. 2019 on the ``events`` voxels), ``blurry`` (the input itself).
-``filter`` (deblur rows only) denoises the input events first: ``stcf`` (spatio-temporal
+``filter`` (deblur rows only) denoises the input events first: ``rdnet`` (RDNet's stage 1
+of ``filter_checkpoint``, seed by seed), ``stcf`` (spatio-temporal
 correlation filter on the raw event stream, then re-voxelized) or ``gef`` (image-guided
 filtering of the voxels).
 """
@@ -47,7 +48,8 @@ class RowConfig:
     method: Literal["deblur", "deblurnet_matched", "rdnet", "image_only", "edi", "blurry"]
     checkpoint: Optional[str] = None
     events: Literal["degraded", "undegraded"] = "degraded"
-    filter: Optional[Literal["stcf", "gef"]] = None
+    filter: Optional[Literal["stcf", "gef", "rdnet"]] = None
+    filter_checkpoint: Optional[str] = None  # filter rdnet: the RDNet whose stage 1 restores the events
     needs: Optional[str] = None          # the extra DVC dependency of the row (dvc.yaml)
     paper_psnr: Optional[float] = None
     label: str = ""
@@ -57,6 +59,8 @@ class RowConfig:
             raise ConfigError("ablation.rows.*.checkpoint", f"method {self.method} needs a checkpoint")
         if self.filter and self.method != "deblur":
             raise ConfigError("ablation.rows.*.filter", "filters apply to deblur rows only")
+        if (self.filter == "rdnet") != bool(self.filter_checkpoint):
+            raise ConfigError("ablation.rows.*.filter_checkpoint", "is given with filter rdnet, and only then")
 
 
 @dataclass(frozen=True)
@@ -113,10 +117,32 @@ class _GefTransform:
                          for v, i in zip(voxels, index)])
 
 
-def voxel_filter(name: str | None, pairs_path: Path, events_dir: Path | None, cfg: FilterConfig):
-    """The ``voxel_transform`` of a filter name (None: no filtering)."""
+class _RestoreTransform:
+    """The degraded voxels of each sample restored by RDNet's stage 1 (``checkpoint``: an
+    RDNet or stage-1 checkpoint), computed once for the whole test set."""
+
+    def __init__(self, pairs_path: Path, checkpoint: Path, batch_size: int, device: str):
+        from rdnet.eval.predict import predict
+        from rdnet.train.checkpoint import read_checkpoint
+        kind = read_checkpoint(checkpoint)["model_kind"]
+        if kind not in ("rdnet", "restore"):
+            from rdnet.errors import FormatError
+            raise FormatError(checkpoint, "model_kind", f"filter rdnet needs an RDNet or restore checkpoint, got {kind!r}")
+        self.restored = predict(kind, checkpoint, pairs_path, "degraded", batch_size=batch_size,
+                                device=device)["restored"]
+
+    def __call__(self, voxels: np.ndarray, index: np.ndarray) -> np.ndarray:
+        return self.restored[np.asarray(index)]
+
+
+def voxel_filter(name: str | None, pairs_path: Path, events_dir: Path | None, cfg: FilterConfig,
+                 checkpoint: Path | None = None, batch_size: int = 8, device: str = "auto"):
+    """The ``voxel_transform`` of a filter name (None: no filtering); ``checkpoint`` is the
+    RDNet of filter ``rdnet``."""
     if name is None:
         return None
+    if name == "rdnet":
+        return _RestoreTransform(pairs_path, checkpoint, batch_size, device)
     if name == "gef":
         return _GefTransform(pairs_path, cfg)
     if name == "stcf":
@@ -185,11 +211,19 @@ def evaluate_ablation_row(cfg: AblationConfig, row_id: str, pairs_path: Path,
         runs, used = [evaluate_edi(pairs_path, row.events, cfg.level_bins)], []
     else:
         from rdnet.eval.predict import evaluate_row
-        transform = voxel_filter(row.filter, pairs_path, events_dir, cfg.filters)
+        if row.filter == "rdnet" and row.events != "degraded":
+            raise ConfigError(f"ablation.rows.{row_id}.events", "filter rdnet restores degraded events")
         used = list(seeds) if row.checkpoint else []
-        ckpts = [seed_checkpoint(row.checkpoint, s) for s in used] or [None]
-        runs = [evaluate_row(row.method, ck, pairs_path, row.events, transform, batch_size=cfg.batch_size,
-                             device=cfg.device, level_bins=cfg.level_bins, progress=True) for ck in ckpts]
+        runs, shared = [], None
+        for s in used or [None]:
+            if row.filter == "rdnet":      # the restoring network of the same seed
+                transform = voxel_filter("rdnet", pairs_path, events_dir, cfg.filters,
+                                         seed_checkpoint(row.filter_checkpoint, s), cfg.batch_size, cfg.device)
+            else:
+                transform = shared = shared or voxel_filter(row.filter, pairs_path, events_dir, cfg.filters)
+            ck = None if s is None else seed_checkpoint(row.checkpoint, s)
+            runs.append(evaluate_row(row.method, ck, pairs_path, row.events, transform, batch_size=cfg.batch_size,
+                                     device=cfg.device, level_bins=cfg.level_bins, progress=True))
     out = mean_over_seeds(runs)
     out["seeds"] = used
     for key in ("psnr", "ssim"):
