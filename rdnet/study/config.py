@@ -23,11 +23,16 @@ class StudyConfig:
     ``parallel``: trainings run at once by a training stage (processes; each uses
     ``train.threads`` torch threads). ``launcher``: the command that runs the training
     stages (dvc.yaml ``${study.launcher}``): ``python``, or for several GPUs
-    ``torchrun --standalone --nproc_per_node=8`` (then ``parallel`` must be 1)."""
+    ``torchrun --standalone --nproc_per_node=8`` (then ``parallel`` must be 1).
+    ``degrade_from``: a ``report.json`` of ``rdnet calibrate``; when set, its
+    ``fitted_config`` (sensor + degrade) replaces the ``sensor`` and ``degrade`` sections
+    for the simulated training and test events (randomized by ``randomize`` as usual):
+    the study rerun with a camera-calibrated degradation."""
 
     seeds: tuple = (0, 1, 2)
     parallel: int = 1
     launcher: str = "python"
+    degrade_from: Optional[str] = None
 
     def __post_init__(self):
         seeds = tuple(int(s) for s in self.seeds)
@@ -78,3 +83,24 @@ def seed_checkpoint(checkpoint: str | Path, seed: int) -> Path:
     model, the same for every seed), else ``<checkpoint>/seed<seed>/model.pt``."""
     p = Path(checkpoint)
     return p if p.suffix == ".pt" else seed_dir(p, seed) / "model.pt"
+
+
+def calibrated_configs(report_path: str | Path):
+    """``(SensorConfig, DegradeConfig)`` of the ``fitted_config`` of an ``rdnet calibrate``
+    report (FormatError / ConfigError naming the file and field when it is not one)."""
+    import json
+    from rdnet.errors import FormatError
+    from rdnet.sim.settings import DegradeConfig, SensorConfig
+    p = Path(report_path)
+    try:
+        rep = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise FormatError(p, None, "no such file (study.degrade_from)") from None
+    except (OSError, ValueError) as e:
+        raise FormatError(p, None, f"not a JSON calibration report: {e}") from None
+    fitted = rep.get("fitted_config") if isinstance(rep, dict) else None
+    if not isinstance(fitted, dict) or not isinstance(fitted.get("sensor"), dict) \
+            or not isinstance(fitted.get("degrade"), dict):
+        raise FormatError(p, "fitted_config", "missing or without sensor/degrade sections")
+    return (from_dict(SensorConfig, fitted["sensor"], "fitted_config.sensor", p),
+            from_dict(DegradeConfig, fitted["degrade"], "fitted_config.degrade", p))

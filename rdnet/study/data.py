@@ -110,10 +110,16 @@ def interpolate_scenes(params: dict, src: Path, out: Path) -> dict:
 
 def simulate_sequences(params: dict, scenes: Path, interp: Path, out: Path) -> dict:
     """Paired ideal/degraded events of every sequence; the degradation of each sequence is
-    drawn from the split's randomized settings and stored in its ``degrade_json`` attr."""
+    drawn from the split's randomized settings and stored in its ``degrade_json`` attr.
+    ``study.degrade_from`` swaps in a calibration report's fitted sensor + degradation."""
     sensor = section(params, "sensor")
     base = section(params, "degrade")
     rand = section(params, "randomize")
+    study = section(params, "study")
+    if study.degrade_from:
+        from rdnet.study.config import calibrated_configs
+        sensor, base = calibrated_configs(study.degrade_from)
+        log.info("sensor and degradation from the calibration %s", study.degrade_from)
     summary = {}
     for split in SPLITS:
         (out / split).mkdir(parents=True, exist_ok=True)

@@ -76,3 +76,21 @@ def test_report_table_shows_spread_compute_and_gaps(tmp_path):
     assert bars[1] == {"row": "rdnet", "psnr": 25.5, "psnr_std": 0.3}
     assert levels == [{"level": 1.0, "degraded_train": 24.0, "rdnet": 25.0}]
     assert np.isfinite([b["psnr"] for b in bars]).all()
+
+
+def test_calibrated_configs_read_a_calibration_report(tmp_path):
+    from rdnet.errors import FormatError
+    from rdnet.study.config import calibrated_configs
+    rep = tmp_path / "report.json"
+    rep.write_text(json.dumps({"fitted_config": {"sensor": {"threshold_on": 0.3, "threshold_off": 0.25},
+                                                 "degrade": {"latency_us": 3800.0, "shot_noise_hz": 0.0}}}))
+    sensor, deg = calibrated_configs(rep)
+    assert (sensor.threshold_on, sensor.threshold_off, deg.latency_us, deg.shot_noise_hz) == (0.3, 0.25, 3800.0, 0.0)
+    with pytest.raises(FormatError, match="no such file"):
+        calibrated_configs(tmp_path / "missing.json")
+    rep.write_text(json.dumps({"effects": []}))
+    with pytest.raises(FormatError, match="fitted_config"):
+        calibrated_configs(rep)
+    rep.write_text(json.dumps({"fitted_config": {"sensor": {"threshold_on": -1}, "degrade": {}}}))
+    with pytest.raises(ConfigError, match="threshold_on"):
+        calibrated_configs(rep)
