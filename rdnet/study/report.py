@@ -44,8 +44,9 @@ def _pm(m: dict, key: str, fmt: str) -> str:
 def network_compute(checkpoint: str | None) -> dict | None:
     """Training compute of a row's network directory, from the ``summary.json`` that
     :func:`rdnet.study.training.train_seeds` writes, including the networks it was
-    initialised from (RDNet = stage 1 + stage 2): ``{"train_s", "iterations", "parameters"}``
-    per seed (means over seeds); None when unknown."""
+    initialised from (RDNet = stage 1 + stage 2): ``{"train_s", "iterations", "train_gflop",
+    "parameters"}`` per seed (means over seeds; ``train_s`` depends on the machine's load,
+    ``train_gflop`` = 3 x forward FLOPs x batch x iterations does not); None when unknown."""
     if not checkpoint or str(checkpoint).endswith(".pt"):
         return None
     p = Path(checkpoint) / "summary.json"
@@ -57,11 +58,12 @@ def network_compute(checkpoint: str | None) -> dict | None:
         return None
     out = {"train_s": sum(r["wall_s"] for r in runs) / len(runs),
            "iterations": sum(r["iterations"] for r in runs) / len(runs),
+           "train_gflop": sum(r.get("train_gflop", float("nan")) for r in runs) / len(runs),
            "parameters": int(s.get("parameters", 0))}
     up = network_compute(s.get("init"))
     if up:
-        out["train_s"] += up["train_s"]
-        out["iterations"] += up["iterations"]
+        for key in ("train_s", "iterations", "train_gflop"):
+            out[key] += up[key]
     return out
 
 
@@ -96,7 +98,7 @@ def rows_frame(rows: dict, compute: dict):
                      "seeds": len(m.get("seeds") or []) or "-",
                      "parameters": f"{c['parameters']:,}" if c else "-",
                      "train steps": f"{c['iterations']:.0f}" if c else "-",
-                     "train time (s)": f"{c['train_s']:.0f}" if c else "-",
+                     "train TFLOP": _f(c["train_gflop"] / 1e3, "{:.1f}") if c else "-",
                      "paper PSNR (dB)": _f(m.get("paper_psnr"))})
     return pd.DataFrame.from_records(recs)
 

@@ -31,23 +31,41 @@ def _seed_train_cfg(train_cfg, net: NetworkConfig, seed: int):
     return dataclasses.replace(train_cfg, seed=int(seed), iterations=iters)
 
 
+def forward_flops(net, crop: int, image_channels: int, bins: int) -> float:
+    """FLOPs of one forward pass of ``net`` on one ``crop`` x ``crop`` sample (torch's
+    FlopCounterMode: convolutions and matrix products). A training step costs about
+    three forward passes (forward + backward); for RDNet the forward runs both stages."""
+    import torch
+    from torch.utils.flop_counter import FlopCounterMode
+    image = torch.zeros(1, image_channels, crop, crop)
+    voxel = torch.zeros(1, bins, crop, crop)
+    counter = FlopCounterMode(display=False)
+    with torch.no_grad(), counter:
+        if getattr(net, "use_events", True):
+            net(image, voxel)
+        else:
+            net(image)
+    return float(counter.get_total_flops())
+
+
 def _train_one(task, train_cfg, model_cfg, train_path, out, events, init, progress) -> dict:
     """Worker body: one seed's training (also run in-process when parallel is 1)."""
-    import torch
     from rdnet.train.loop import train
     t0 = time.perf_counter()
     ck = train(task, train_cfg, model_cfg, train_path, out, events=events, init_checkpoint=init,
                resume=True, progress=progress)
     wall = time.perf_counter() - t0
     record_path = Path(out) / "train.json"
-    state = torch.load(ck, map_location="cpu", weights_only=False)
-    n_params = int(sum(v.numel() for v in state["state_dict"].values()))
     if record_path.is_file() and wall < 1.0:      # already complete: keep the measured time
         return json.loads(record_path.read_text())
+    from rdnet.train.checkpoint import load_model, read_checkpoint
+    net, args = load_model(ck), read_checkpoint(ck)["model_args"]
+    n_params = int(sum(p.numel() for p in net.parameters()))
+    gflop = 3 * forward_flops(net, train_cfg.crop, int(args["image_channels"]), int(args["bins"])) * train_cfg.batch_size * train_cfg.iterations / 1e9
     from rdnet.eval.report import write_text_atomic
     from rdnet.train.distributed import dist_info
     record = {"seed": train_cfg.seed, "task": task, "events": events, "iterations": train_cfg.iterations,
-              "wall_s": round(wall, 2), "parameters": n_params, "checkpoint": str(ck),
+              "wall_s": round(wall, 2), "parameters": n_params, "train_gflop": round(gflop, 1), "checkpoint": str(ck),
               "threads": train_cfg.threads, "processes": dist_info().world_size}
     if dist_info().rank == 0:
         write_text_atomic(record_path, json.dumps(record, indent=2) + "\n")

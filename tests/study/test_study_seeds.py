@@ -58,10 +58,11 @@ def test_report_table_shows_spread_compute_and_gaps(tmp_path):
     for name, init, wall in (("restore", None, 10.0), ("rdnet", str(tmp_path / "restore"), 30.0)):
         d = tmp_path / name
         d.mkdir()
-        runs = [{"seed": s, "wall_s": wall + s, "iterations": 100} for s in (0, 1)]
+        runs = [{"seed": s, "wall_s": wall + s, "iterations": 100, "train_gflop": wall * 100} for s in (0, 1)]
         (d / "summary.json").write_text(json.dumps({"runs": runs, "init": init, "parameters": 1234}))
     c = network_compute(str(tmp_path / "rdnet"))
     assert c["train_s"] == pytest.approx(10.5 + 30.5) and c["iterations"] == 200 and c["parameters"] == 1234
+    assert c["train_gflop"] == pytest.approx(4000.0)
     assert network_compute("x/model.pt") is None and network_compute(None) is None
     rows = {"degraded_train": {"method": "deblur", "events": "degraded", "psnr": 25.0, "psnr_std": 0.1,
                                "ssim": 0.8, "ssim_std": 0.01, "seeds": [0, 1], "psnr_seeds": [24.9, 25.1],
@@ -70,7 +71,7 @@ def test_report_table_shows_spread_compute_and_gaps(tmp_path):
                       "ssim_std": 0.02, "seeds": [0, 1], "psnr_seeds": [25.2, 25.8], "paper_psnr": 37.33,
                       "by_level": [{"level_bin": 1.0, "psnr": 25.0}]}}
     md = ablation_markdown(rows, {"degraded": {"voxel_l1": 1.0, "voxel_psnr": 10.0}}, {"rdnet": c})
-    assert "25.50 ± 0.30" in md and "1,234" in md and "41" in md and "1.0000" in md
+    assert "25.50 ± 0.30" in md and "1,234" in md and "| 4.0 " in md and "1.0000" in md
     assert "+0.50 ± 0.28" in md and "2/2" in md           # paired: diffs 0.3 and 0.7
     bars, levels = plot_data(rows)
     assert bars[1] == {"row": "rdnet", "psnr": 25.5, "psnr_std": 0.3}
@@ -94,3 +95,13 @@ def test_calibrated_configs_read_a_calibration_report(tmp_path):
     rep.write_text(json.dumps({"fitted_config": {"sensor": {"threshold_on": -1}, "degrade": {}}}))
     with pytest.raises(ConfigError, match="threshold_on"):
         calibrated_configs(rep)
+
+
+def test_forward_flops_count_convolutions():
+    from rdnet.nn.models import build_model
+    from rdnet.study.training import forward_flops
+    deblur = build_model("deblur", size="tiny", image_channels=1, bins=10)
+    rdnet = build_model("rdnet", size="tiny", image_channels=1, bins=10)
+    f1, f2 = forward_flops(deblur, 32, 1, 10), forward_flops(rdnet, 32, 1, 10)
+    assert f1 > 0 and f2 > 1.8 * f1                   # RDNet runs two stage networks
+    assert forward_flops(deblur, 64, 1, 10) == pytest.approx(4 * f1, rel=0.01)   # linear in pixels
