@@ -37,6 +37,7 @@ SECTIONS: dict[str, str] = {
     "ablation": "rdnet.study.rows:AblationConfig",
     "study": "rdnet.study.config:StudyConfig",
     "calibrate": "rdnet.calib.settings:CalibrateConfig",
+    "deblur": "rdnet.deblur.config:DeblurConfig",
 }
 
 

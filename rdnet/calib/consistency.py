@@ -8,16 +8,37 @@ the event counts in (t_k, t_{k+1}]. Over the *active* pixel-intervals (at least 
 or a log change above the smaller threshold) we report the coefficient of determination
 ``R^2 = 1 - sum (dL - pred)^2 / sum (dL - mean dL)^2`` (depends on the thresholds) and the
 Pearson correlation of ``pred`` and ``dL`` (threshold-free when ON = OFF).
+
+The frames come from any object with the attributes of :class:`FrameSeries` (a
+:class:`~rdnet.calib.context.CalibContext`, or the frames of ``rdnet deblur``). To compare
+several event streams over the same pixel-intervals, pass one ``active`` mask to every
+call (e.g. the union of their :func:`active_intervals`).
 """
 from __future__ import annotations
 
+from typing import Protocol
+
 import numpy as np
 
-from rdnet.calib.context import CalibContext
 from rdnet.events.core import Events
 
 
-def interval_counts(events: Events, ctx: CalibContext) -> tuple[np.ndarray, np.ndarray]:
+class FrameSeries(Protocol):
+    """What the measure reads of the frames: ``frame_t`` (N,) int64 us, ``log_frames``
+    (N, H, W) log intensity, ``width`` and ``n_pixels`` of that grid, and the compared
+    window [``t0``, ``t1``) (intervals outside it are left out)."""
+
+    frame_t: np.ndarray
+    log_frames: np.ndarray
+    width: int
+    t0: int
+    t1: int
+
+    @property
+    def n_pixels(self) -> int: ...
+
+
+def interval_counts(events: Events, ctx: FrameSeries) -> tuple[np.ndarray, np.ndarray]:
     """(N-1, P) ON and OFF counts of ``events`` between consecutive frames."""
     ft = ctx.frame_t
     a = events.array
@@ -33,16 +54,34 @@ def interval_counts(events: Events, ctx: CalibContext) -> tuple[np.ndarray, np.n
     return n_on, n_off
 
 
-def consistency(events: Events, ctx: CalibContext, threshold_on: float, threshold_off: float) -> dict:
-    """``{"r2", "correlation", "active", "slope"}`` over the frame intervals inside the
-    compared window (``slope``: least-squares gain of dL on pred, 1 = thresholds right)."""
-    n_on, n_off = interval_counts(events, ctx)
+def log_changes(ctx: FrameSeries) -> np.ndarray:
+    """(N-1, P) float64 change of log intensity between consecutive frames."""
     lf = ctx.log_frames.reshape(len(ctx.frame_t), -1)
-    dL = np.diff(lf, axis=0).astype(np.float64)
+    return np.diff(lf, axis=0).astype(np.float64)
+
+
+def _active(n_on, n_off, dL, ctx: FrameSeries, threshold_on: float, threshold_off: float) -> np.ndarray:
     inside = (ctx.frame_t[:-1] >= ctx.t0) & (ctx.frame_t[1:] <= ctx.t1)
-    pred = threshold_on * n_on - threshold_off * n_off
     act = ((n_on + n_off) > 0) | (np.abs(dL) >= min(threshold_on, threshold_off))
-    act &= inside[:, None]
+    return act & inside[:, None]
+
+
+def active_intervals(events: Events, ctx: FrameSeries, threshold_on: float, threshold_off: float) -> np.ndarray:
+    """(N-1, P) bool: the pixel-intervals inside the compared window with at least one
+    event or a log change of at least the smaller threshold."""
+    n_on, n_off = interval_counts(events, ctx)
+    return _active(n_on, n_off, log_changes(ctx), ctx, threshold_on, threshold_off)
+
+
+def consistency(events: Events, ctx: FrameSeries, threshold_on: float, threshold_off: float,
+                *, active: np.ndarray | None = None) -> dict:
+    """``{"r2", "correlation", "active", "slope"}`` over the frame intervals inside the
+    compared window (``slope``: least-squares gain of dL on pred, 1 = thresholds right).
+    ``active``: the (N-1, P) pixel-intervals to score (default: :func:`active_intervals`)."""
+    n_on, n_off = interval_counts(events, ctx)
+    dL = log_changes(ctx)
+    pred = threshold_on * n_on - threshold_off * n_off
+    act = _active(n_on, n_off, dL, ctx, threshold_on, threshold_off) if active is None else active
     y, x = dL[act], pred[act]
     out = {"active": int(act.sum()), "r2": float("nan"), "correlation": float("nan"), "slope": float("nan")}
     if y.size < 3:

@@ -157,11 +157,14 @@ def sample_grid(path: str | Path, blurry, voxel_degraded, voxel_restored, deblur
                 *, titles: Sequence[str] | None = None, row_labels: Sequence[str] | None = None) -> Path:
     """PNG grid, one row per sample: blurry | degraded events | restored events |
     deblurred | sharp. Images (n, C, H, W) in [0, 1], voxels (n, B, H, W);
-    ``voxel_restored`` may be None (column left out)."""
+    ``voxel_restored`` and ``sharp`` may be None (column left out; e.g. real recordings
+    have no sharp frame)."""
     cols = [("blurry", blurry, "image"), ("degraded events", voxel_degraded, "events")]
     if voxel_restored is not None:
         cols.append(("restored events", voxel_restored, "events"))
-    cols += [("deblurred", deblurred, "image"), ("sharp", sharp, "image")]
+    cols.append(("deblurred", deblurred, "image"))
+    if sharp is not None:
+        cols.append(("sharp", sharp, "image"))
     if titles is not None:
         if len(titles) != len(cols):
             raise ValueError(f"expected {len(cols)} titles, got {len(titles)}")

@@ -13,13 +13,16 @@ count: summing over bins gives the signed event count per pixel.
 Normalisation (``normalize``): ``None`` keeps raw signed counts (the default, what the
 networks consume); ``"maxabs"`` divides by the largest absolute value;
 ``"std"`` divides the non-zero entries by their standard deviation (EFNet style).
+
+:func:`voxel_events` goes the other way: a (restored, real-valued) voxel grid rounded to
+whole events, e.g. to write the output of the restoration network as an event stream.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from rdnet.errors import ValidationError
-from rdnet.events.core import Events
+from rdnet.events.core import EVENT_DTYPE, Events
 
 
 def voxel_grid(events: Events, bins: int, t0_us: int, duration_us: int, *,
@@ -56,14 +59,70 @@ def voxel_grid(events: Events, bins: int, t0_us: int, duration_us: int, *,
     return normalize_voxel(grid, normalize)
 
 
-def normalize_voxel(grid: np.ndarray, normalize: str | None) -> np.ndarray:
+def normalization_scale(grid: np.ndarray, normalize: str | None) -> float:
+    """The divisor :func:`normalize_voxel` applies to ``grid`` (1.0 when it leaves the
+    grid as is); multiplying a normalised grid by it gives signed counts again."""
     if normalize is None or normalize == "none":
-        return grid
+        return 1.0
     if normalize == "maxabs":
-        m = float(np.abs(grid).max())
-        return grid / m if m > 0 else grid
+        m = float(np.abs(grid).max()) if grid.size else 0.0
+        return m if m > 0 else 1.0
     if normalize == "std":
         nz = grid[grid != 0]
         s = float(nz.std()) if nz.size > 1 else 0.0
-        return grid / s if s > 0 else grid
+        return s if s > 0 else 1.0
     raise ValidationError("normalize", f"unknown normalisation {normalize!r}; use none, maxabs or std")
+
+
+def normalize_voxel(grid: np.ndarray, normalize: str | None) -> np.ndarray:
+    scale = normalization_scale(grid, normalize)
+    return grid if scale == 1.0 else grid / scale
+
+
+def voxel_events(grid: np.ndarray, t0_us: int, duration_us: int, *, mode: str = "hard",
+                 scale: float = 1.0) -> Events:
+    """Events whose voxel grid over [t0, t0 + duration] is ``grid`` rounded to whole
+    events: the inverse of :func:`voxel_grid` for integer grids.
+
+    ``grid`` (bins, height, width) holds signed counts (times ``1 / scale`` when it was
+    normalised: ``scale`` is :func:`normalization_scale` of the raw grid). Each entry
+    becomes ``|round(v * scale)|`` events of polarity ``sign(v)``. ``mode="hard"`` spreads
+    the n events of bin k evenly over the bin's integer microseconds (exact inverse when
+    ``duration_us >= bins``: every bin then holds at least one integer time);
+    ``mode="bilinear"`` puts them at the bin's time
+    position t0 + k T / (bins - 1) (rounded up). Returns time-sorted events (stable in bin, row,
+    column order for equal times) on a ``width`` x ``height`` sensor.
+    """
+    grid = np.asarray(grid)
+    if grid.ndim != 3:
+        raise ValidationError("voxel", f"expected (bins, height, width), got shape {grid.shape}")
+    if duration_us <= 0:
+        raise ValidationError("duration_us", f"must be > 0, got {duration_us}")
+    bins, H, W = grid.shape
+    counts = np.rint(grid.astype(np.float64) * float(scale)).astype(np.int64).ravel()
+    nz = np.flatnonzero(counts)
+    n = np.abs(counts[nz])
+    idx = np.repeat(nz, n)                                   # one entry per event
+    first = np.repeat(np.cumsum(n) - n, n)
+    j = np.arange(idx.size, dtype=np.int64) - first          # event number inside its entry
+    nn = np.repeat(n, n)
+    b = idx // (H * W)
+    t0_us, duration_us = int(t0_us), int(duration_us)
+    if mode == "hard":
+        # the integer times of bin b: ceil(b T / bins) .. ceil((b + 1) T / bins) - 1 (last: .. T)
+        lo = -((-b * duration_us) // bins)
+        hi = np.where(b == bins - 1, duration_us, -((-(b + 1) * duration_us) // bins) - 1)
+        span = np.maximum(hi - lo + 1, 1)
+        t = t0_us + np.minimum(lo + ((2 * j + 1) * span) // (2 * nn), duration_us)
+    elif mode == "bilinear":
+        t = t0_us - (-(b * duration_us) // max(bins - 1, 1))     # ceil: lands in bin b
+    else:
+        raise ValidationError("mode", f"unknown voxel mode {mode!r}; use 'hard' or 'bilinear'")
+    pix = idx % (H * W)
+    order = np.argsort(t, kind="stable")
+    arr = np.empty(idx.size, EVENT_DTYPE)
+    arr["t"] = t[order]
+    arr["x"] = (pix % W)[order]
+    arr["y"] = (pix // W)[order]
+    arr["p"] = (counts[idx] > 0)[order]
+    return Events(arr, W, H, validate=False)

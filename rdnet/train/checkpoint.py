@@ -8,7 +8,8 @@ A checkpoint is a ``torch.save`` dict with:
   image_channels, bins and the overrides), ``model_class`` and ``model_config`` (the
   network's constructor arguments, checked on load);
 * ``state_dict``; ``config`` (the train config dict), ``extra`` (e.g. the input event
-  kind of a deblur model);
+  kind of a deblur model, and ``voxel``: bins, mode and normalisation of the training
+  voxels, :func:`rdnet.train.data.read_pairs_voxel`);
 * for resuming: ``optimizer``, ``scheduler``, ``step``, ``rng`` (torch CPU/CUDA and
   numpy global generator states).
 

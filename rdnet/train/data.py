@@ -79,6 +79,21 @@ def read_pairs_info(path: str | Path) -> PairsInfo:
     return PairsInfo(n=int(n), channels=int(c), bins=int(b), height=int(h), width=int(w))
 
 
+def read_pairs_voxel(path: str | Path) -> dict:
+    """How the voxels of a pairs file were made: ``bins``, ``mode`` (attribute
+    ``voxel_mode``; None when absent) and ``normalize`` (attribute ``voxel_normalize``;
+    None = raw signed counts, what :func:`rdnet.study.data.make_pairs` writes). Stored
+    in checkpoints so that inference builds the same voxels."""
+    import h5py
+    info = read_pairs_info(path)
+    with h5py.File(path, "r") as f:
+        attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+    mode = attrs.get("voxel_mode")
+    norm = attrs.get("voxel_normalize")
+    return {"bins": info.bins, "mode": None if mode is None else str(mode),
+            "normalize": None if norm in (None, "none", "") else str(norm)}
+
+
 def draw_augment(seed: int, epoch: int, index: int, height: int, width: int,
                  crop: int | None, augment: bool) -> tuple[int, int, int, int, bool, bool]:
     """(y0, x0, ch, cw, flip_h, flip_v) of a draw: a pure function of (seed, epoch, index)."""

@@ -42,7 +42,7 @@ from rdnet.config import to_dict
 from rdnet.errors import ConfigError, FormatError
 from rdnet.train import checkpoint as ckpt_mod
 from rdnet.train.config import ModelConfig, TrainConfig
-from rdnet.train.data import PairsDataset, StepSampler
+from rdnet.train.data import PairsDataset, StepSampler, read_pairs_voxel
 from rdnet.train.distributed import DistInfo, dist_info, all_reduce_mean, barrier, replica_digests
 
 log = logging.getLogger(__name__)
@@ -230,7 +230,8 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
     config = to_dict(cfg)
     extra = {"events": events, "train_path": str(Path(train_path)),
              "init_checkpoint": None if init_checkpoint is None else str(init_checkpoint),
-             "model_cfg": to_dict(model_cfg), "pairs_shape": dataclasses.asdict(data.info)}
+             "model_cfg": to_dict(model_cfg), "pairs_shape": dataclasses.asdict(data.info),
+             "voxel": read_pairs_voxel(train_path)}
 
     if resume and final_path.is_file() and not last_path.is_file():
         ck = ckpt_mod.read_checkpoint(final_path)

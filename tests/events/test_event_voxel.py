@@ -100,3 +100,30 @@ def test_normalisation_and_argument_checks():
         args = {"bins": 2, "t0_us": 0, "duration_us": 40, **kw}
         with pytest.raises(ValidationError):
             voxel_grid(ev, **args)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), bins=st.integers(1, 12), duration=st.integers(1, 10**7),
+       t0=st.integers(-10**9, 10**9))
+def test_voxel_events_inverts_hard_voxel_grids(seed, bins, duration, t0):
+    from rdnet.events import voxel_events
+    duration = max(duration, bins)           # bins shorter than 1 us hold no integer time
+    rng = np.random.default_rng(seed)
+    grid = rng.integers(-3, 4, (bins, 5, 7)).astype(np.float32)
+    noisy = grid + rng.uniform(-0.45, 0.45, grid.shape).astype(np.float32)    # rounds back to grid
+    ev = voxel_events(noisy, t0, duration)
+    assert len(ev) == int(np.abs(grid).sum()) and (ev.width, ev.height) == (7, 5)
+    assert np.all(np.diff(ev.t) >= 0) and ev.t.min(initial=t0) >= t0 and ev.t.max(initial=t0) <= t0 + duration
+    np.testing.assert_array_equal(voxel_grid(ev, bins, t0, duration), grid)
+    back = voxel_grid(voxel_events(grid, t0, duration, mode="bilinear"), bins, t0, duration, mode="bilinear")
+    np.testing.assert_allclose(back.sum(0), grid.sum(0), atol=1e-4)          # signed count kept
+
+
+@pytest.mark.parametrize("normalize", [None, "maxabs", "std"])
+def test_normalization_scale_undoes_normalize_voxel(normalize):
+    from rdnet.events import normalization_scale, normalize_voxel, voxel_events
+    grid = np.array([[[0, 2, -4], [1, 0, 3]]], np.float32)
+    scale = normalization_scale(grid, normalize)
+    np.testing.assert_allclose(normalize_voxel(grid, normalize) * scale, grid)
+    assert len(voxel_events(normalize_voxel(grid, normalize), 0, 100, scale=scale)) == 10
+    assert normalization_scale(np.zeros((2, 3, 3), np.float32), normalize) == 1.0

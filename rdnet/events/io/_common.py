@@ -73,9 +73,7 @@ def temp_path_for(path: str | Path) -> Path:
     try:
         fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
         os.close(fd)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(name, 0o666 & ~umask)      # mkstemp makes 0600; give the final file the usual mode
+        os.chmod(name, 0o666 & ~_umask())   # mkstemp makes 0600; give the final file the usual mode
     except OSError as e:
         raise FormatError(path, None, f"cannot write ({e.strerror or e})") from None
     return Path(name)
@@ -98,6 +96,48 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
     except BaseException:
         remove_quietly(tmp)
         raise
+
+
+@contextlib.contextmanager
+def atomic_directory(path: str | Path) -> Iterator[Path]:
+    """Yield a fresh staging folder next to ``path``; on normal exit its content lands in
+    ``path``, on an exception it is deleted and ``path`` is left untouched.
+
+    When ``path`` does not exist the staging folder is renamed to it (one atomic step);
+    otherwise each staged file replaces its namesake inside ``path`` (``os.replace``)
+    and files of ``path`` that were not staged are kept."""
+    import shutil
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise FormatError(path, None, "exists and is not a folder")
+    parent = path.parent if str(path.parent) else Path(".")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        stage = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=parent))
+    except OSError as e:
+        raise FormatError(path, None, f"cannot write ({e.strerror or e})") from None
+    try:
+        yield stage
+        if not path.exists():
+            os.chmod(stage, 0o777 & ~_umask())
+            os.replace(stage, path)
+            return
+        for src in sorted(stage.rglob("*")):
+            dst = path / src.relative_to(stage)
+            if src.is_dir():
+                dst.mkdir(exist_ok=True)
+            else:
+                os.replace(src, dst)
+        shutil.rmtree(stage, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+
+
+def _umask() -> int:
+    umask = os.umask(0)
+    os.umask(umask)
+    return umask
 
 
 def checked_cast(values: np.ndarray, target, path, field: str) -> np.ndarray:

@@ -1,0 +1,41 @@
+"""``deblur`` section of params.yaml: how ``rdnet deblur`` runs RDNet on a real recording."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal, Optional
+
+from rdnet.config import positive
+from rdnet.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class DeblurConfig:
+    """``window``: the events a frame's deblurring sees. ``exposure`` = the frame's
+    exposure window (what the paper's blur model means); ``interval`` = half-way to the
+    neighbouring frames on each side (consecutive windows tile the recording); ``auto`` =
+    exposure when every frame has an exposure time, else interval (the fallback for files
+    that store none; the choice is written to the output).
+    ``batch_size``: frames per network call; ``device``: cpu, cuda or auto (cuda when
+    available); ``threads``: torch CPU threads (0 = torch's default).
+    ``max_frames``: deblur only the first N frames (None = all).
+    ``montage_frames``: frames shown in ``montage.png`` (0 = no figure); ``png``: also
+    write every deblurred frame as an 8-bit PNG.
+    """
+
+    window: Literal["auto", "exposure", "interval"] = "auto"
+    batch_size: int = 4
+    device: Literal["cpu", "cuda", "auto"] = "auto"
+    threads: int = 0
+    max_frames: Optional[int] = None
+    montage_frames: int = 3
+    png: bool = True
+
+    def __post_init__(self):
+        positive("deblur.batch_size", self.batch_size, allow_zero=False)
+        positive("deblur.threads", self.threads)
+        positive("deblur.montage_frames", self.montage_frames)
+        if self.max_frames is not None and self.max_frames < 2:
+            raise ConfigError("deblur.max_frames", f"must be >= 2 (consecutive frames are compared) "
+                              f"or null, got {self.max_frames}")
+        if self.device not in ("cpu", "cuda", "auto"):
+            raise ConfigError("deblur.device", f"must be cpu, cuda or auto, got {self.device!r}")
