@@ -14,8 +14,13 @@ def main(args, params):
     from rdnet.train.distributed import cleanup, init_from_env
     init_from_env(section(params, "train").device)      # under torchrun (study.launcher): join the group
     net = network(params, args.network) if args.network else NetworkConfig(task=args.task, events=args.events)
-    summary = train_seeds(net, section(params, "study"), section(params, "train"), section(params, "model"),
-                          args.train, args.out, init=args.init, progress=True)
+    study = section(params, "study")
+    init_deblur = None
+    if net.task == "rdnet" and study.rdnet_stage2_init:
+        network(params, study.rdnet_stage2_init)          # must name a network of the study
+        init_deblur = args.models / study.rdnet_stage2_init
+    summary = train_seeds(net, study, section(params, "train"), section(params, "model"),
+                          args.train, args.out, init=args.init, init_deblur=init_deblur, progress=True)
     cleanup()
     print(f"trained {args.out} for seeds {summary['seeds']} in {summary['wall_s_total']:.0f} s "
           f"({summary['parameters']:,} parameters)")
@@ -31,6 +36,8 @@ def _parser():
     p.add_argument("--init", type=Path, default=None,
                    help="starting weights: a network directory (seed by seed) or a .pt file")
     p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--models", type=Path, default=Path("models"),
+                   help="where the study's networks are (study.rdnet_stage2_init)")
     return p
 
 

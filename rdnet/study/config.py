@@ -27,12 +27,19 @@ class StudyConfig:
     ``degrade_from``: a ``report.json`` of ``rdnet calibrate``; when set, its
     ``fitted_config`` (sensor + degrade) replaces the ``sensor`` and ``degrade`` sections
     for the simulated training and test events (randomized by ``randomize`` as usual):
-    the study rerun with a camera-calibrated degradation."""
+    the study rerun with a camera-calibrated degradation.
+    ``rdnet_stage2_init``: a network of ``networks`` (a DeblurNet, e.g. ``deblur_undegraded``)
+    whose weights start RDNet's stage 2, seed by seed; null: stage 2 starts from scratch.
+    ``stress_scales`` / ``stress_rows``: the stress test (:mod:`rdnet.study.stress`) scores
+    these rows on the test sequences with every effect at exactly each scale x ``degrade``."""
 
     seeds: tuple = (0, 1, 2)
     parallel: int = 1
     launcher: str = "python"
     degrade_from: Optional[str] = None
+    rdnet_stage2_init: Optional[str] = None
+    stress_scales: tuple = (0.5, 1.0, 1.5, 2.0, 3.0)
+    stress_rows: tuple = ("undegraded_train", "degraded_train", "rdnet", "restored")
 
     def __post_init__(self):
         seeds = tuple(int(s) for s in self.seeds)
@@ -43,6 +50,11 @@ class StudyConfig:
         if any(s < 0 for s in seeds):
             raise ConfigError("study.seeds", "seeds must be >= 0")
         object.__setattr__(self, "seeds", seeds)
+        scales = tuple(float(v) for v in self.stress_scales)
+        if any(not v > 0 for v in scales):
+            raise ConfigError("study.stress_scales", f"must be > 0, got {list(scales)}")
+        object.__setattr__(self, "stress_scales", scales)
+        object.__setattr__(self, "stress_rows", tuple(str(r) for r in self.stress_rows))
         if not self.launcher.strip():
             raise ConfigError("study.launcher", "must name a command (python or torchrun ...)")
         if int(self.parallel) < 1:

@@ -20,7 +20,7 @@ from rdnet.events.io import read_events, read_recording, write_recording
 from rdnet.sim.blur import PairsWriter, make_samples
 from rdnet.sim.interpolate import UpsampleStats, upsample_all
 from rdnet.sim.pair import simulate_pair
-from rdnet.sim.randomize import degradation_level, draw_degrade
+from rdnet.sim.randomize import degradation_level, draw_degrade, scale_degrade
 from rdnet.sim.scenes import SPLITS, render_split
 
 log = logging.getLogger(__name__)
@@ -108,10 +108,13 @@ def interpolate_scenes(params: dict, src: Path, out: Path) -> dict:
     return summary
 
 
-def simulate_sequences(params: dict, scenes: Path, interp: Path, out: Path) -> dict:
+def simulate_sequences(params: dict, scenes: Path, interp: Path, out: Path, splits=SPLITS,
+                       fixed_scale: float | None = None) -> dict:
     """Paired ideal/degraded events of every sequence; the degradation of each sequence is
     drawn from the split's randomized settings and stored in its ``degrade_json`` attr.
-    ``study.degrade_from`` swaps in a calibration report's fitted sensor + degradation."""
+    ``study.degrade_from`` swaps in a calibration report's fitted sensor + degradation.
+    ``fixed_scale``: every active effect of every sequence at exactly ``fixed_scale`` x
+    ``degrade`` instead of the randomized draw (the stress test); ``splits``: which splits."""
     sensor = section(params, "sensor")
     base = section(params, "degrade")
     rand = section(params, "randomize")
@@ -121,12 +124,14 @@ def simulate_sequences(params: dict, scenes: Path, interp: Path, out: Path) -> d
         sensor, base = calibrated_configs(study.degrade_from)
         log.info("sensor and degradation from the calibration %s", study.degrade_from)
     summary = {}
-    for split in SPLITS:
+    for split in splits:
         (out / split).mkdir(parents=True, exist_ok=True)
         counts = []
         for i, path in enumerate(tqdm(sequences(interp, split), desc=f"simulate {split}", disable=None)):
             rng = step_rng(params, "simulate", split, i)
             deg = draw_degrade(base, rand, split, rng)
+            if fixed_scale is not None:
+                deg = scale_degrade(base, {k: float(fixed_scale) for k in base.active()})
             up = read_recording(path).require_frames(str(path))
             ideal, degraded = simulate_pair(up, None, sensor, deg, rng)
             orig = read_recording(scenes / split / path.name)
@@ -141,7 +146,7 @@ def simulate_sequences(params: dict, scenes: Path, interp: Path, out: Path) -> d
     return summary
 
 
-def make_pairs(params: dict, events_dir: Path, out: Path) -> dict:
+def make_pairs(params: dict, events_dir: Path, out: Path, splits=SPLITS) -> dict:
     """Blurry/sharp pairs and both voxel grids of every sequence -> ``out/<split>.h5``."""
     from rdnet.sim.settings import DegradeConfig
     from rdnet.config import from_dict
@@ -149,7 +154,7 @@ def make_pairs(params: dict, events_dir: Path, out: Path) -> dict:
     vox = section(params, "voxel")
     out.mkdir(parents=True, exist_ok=True)
     summary = {}
-    for split in SPLITS:
+    for split in splits:
         n = 0
         files = sequences(events_dir, split)
         channels = 3 if section(params, "scenes").color else 1

@@ -60,10 +60,11 @@ def network_compute(checkpoint: str | None) -> dict | None:
            "iterations": sum(r["iterations"] for r in runs) / len(runs),
            "train_gflop": sum(r.get("train_gflop", float("nan")) for r in runs) / len(runs),
            "parameters": int(s.get("parameters", 0))}
-    up = network_compute(s.get("init"))
-    if up:
-        for key in ("train_s", "iterations", "train_gflop"):
-            out[key] += up[key]
+    for parent in (s.get("init"), s.get("init_deblur")):   # RDNet: + stage 1 (+ the DeblurNet of stage 2)
+        up = network_compute(parent)
+        if up:
+            for key in ("train_s", "iterations", "train_gflop"):
+                out[key] += up[key]
     return out
 
 

@@ -48,12 +48,12 @@ def forward_flops(net, crop: int, image_channels: int, bins: int) -> float:
     return float(counter.get_total_flops())
 
 
-def _train_one(task, train_cfg, model_cfg, train_path, out, events, init, progress) -> dict:
+def _train_one(task, train_cfg, model_cfg, train_path, out, events, init, init_deblur, progress) -> dict:
     """Worker body: one seed's training (also run in-process when parallel is 1)."""
     from rdnet.train.loop import train
     t0 = time.perf_counter()
     ck = train(task, train_cfg, model_cfg, train_path, out, events=events, init_checkpoint=init,
-               resume=True, progress=progress)
+               init_deblur=init_deblur, resume=True, progress=progress)
     wall = time.perf_counter() - t0
     record_path = Path(out) / "train.json"
     if record_path.is_file() and wall < 1.0:      # already complete: keep the measured time
@@ -73,10 +73,12 @@ def _train_one(task, train_cfg, model_cfg, train_path, out, events, init, progre
 
 
 def train_seeds(net: NetworkConfig, study: StudyConfig, train_cfg, model_cfg, train_path: str | Path,
-                out_dir: str | Path, *, init: str | Path | None = None, progress: bool = True) -> dict:
+                out_dir: str | Path, *, init: str | Path | None = None, init_deblur: str | Path | None = None,
+                progress: bool = True) -> dict:
     """Train ``net`` for every seed of ``study`` into ``out_dir/seed<k>``; ``init`` (a
     network directory or a ``.pt`` file) gives each seed's starting weights, seed by seed
-    (:func:`~rdnet.study.config.seed_checkpoint`). Returns and writes ``summary.json``."""
+    (:func:`~rdnet.study.config.seed_checkpoint`), and ``init_deblur`` RDNet's stage 2.
+    Returns and writes ``summary.json``."""
     from rdnet.errors import ConfigError
     from rdnet.train.distributed import dist_info
     out_dir = Path(out_dir)
@@ -86,7 +88,8 @@ def train_seeds(net: NetworkConfig, study: StudyConfig, train_cfg, model_cfg, tr
     for s in study.seeds:
         cfg = _seed_train_cfg(train_cfg, net, s)
         ini = None if init is None else str(seed_checkpoint(init, s))
-        jobs.append((net.task, cfg, model_cfg, str(train_path), str(seed_dir(out_dir, s)), net.events, ini))
+        ini2 = None if init_deblur is None else str(seed_checkpoint(init_deblur, s))
+        jobs.append((net.task, cfg, model_cfg, str(train_path), str(seed_dir(out_dir, s)), net.events, ini, ini2))
     workers = min(study.parallel, len(jobs))
     if workers == 1:
         records = [_train_one(*j, progress) for j in jobs]
@@ -100,7 +103,8 @@ def train_seeds(net: NetworkConfig, study: StudyConfig, train_cfg, model_cfg, tr
                 records.append(f.result())
                 log.info("seed %d done in %.0f s", s, records[-1]["wall_s"])
     summary = {"task": net.task, "events": net.events, "iterations_factor": net.iterations_factor,
-               "seeds": list(study.seeds), "init": None if init is None else str(init), "runs": records,
+               "seeds": list(study.seeds), "init": None if init is None else str(init),
+               "init_deblur": None if init_deblur is None else str(init_deblur), "runs": records,
                "wall_s_total": round(sum(r["wall_s"] for r in records), 2),
                "parameters": records[0]["parameters"]}
     from rdnet.eval.report import write_text_atomic

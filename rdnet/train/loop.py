@@ -162,6 +162,24 @@ def _init_from(task: str, net: nn.Module, path: Path, args: Mapping) -> None:
     log.info("initialised %s from %s (step %s)", task, path, ck.get("step"))
 
 
+def _init_deblur(task: str, net: nn.Module, path: Path, args: Mapping) -> None:
+    """Stage 2 of an RDNet from a DeblurNet checkpoint (``init_deblur``; a DeblurNet of
+    the same size trained on undegraded events gives stage 2, and with it the event
+    encoder F of the feature loss, a clean-event starting point)."""
+    if task != "rdnet":
+        raise ConfigError("init_deblur", f"only task rdnet takes a stage-2 initialisation, not {task!r}")
+    ck = ckpt_mod.read_checkpoint(path)
+    if ck["model_kind"] != "deblur":
+        raise FormatError(path, "model_kind", f"holds a {ck['model_kind']!r} model; stage 2 starts from a 'deblur' one")
+    ckpt_mod.check_compatible(path, ck, bins=args["bins"], image_channels=args["image_channels"])
+    stored = {k: v for k, v in ck["model_args"].items() if k != "kind"}
+    wanted = {k: v for k, v in ckpt_mod._plain(args).items() if k != "kind"}
+    if stored != wanted:
+        raise FormatError(path, "model_args", f"DeblurNet {stored} differs from this run's stage 2 {wanted}")
+    ckpt_mod.load_state(path, net.deblur, ck["state_dict"])
+    log.info("initialised stage 2 of rdnet from %s (step %s)", path, ck.get("step"))
+
+
 def _same_run(path: Path, ck: Mapping, task: str, args: Mapping, config: Mapping, extra: Mapping) -> None:
     """ConfigError when checkpoint ``ck`` was written by a run with other settings."""
     def differ(key, a, b):
@@ -196,11 +214,13 @@ def _open_live(out_dir: Path, resume: bool, params: Mapping):
 # --- the loop -------------------------------------------------------------------------
 def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str | Path,
           out_dir: str | Path, *, events: str = "degraded", init_checkpoint: str | Path | None = None,
+          init_deblur: str | Path | None = None,
           resume: bool = True, progress: bool = True, stop_after: int | None = None) -> Path:
     """Train ``task`` on the pairs file ``train_path``; return ``out_dir/model.pt``.
 
     ``events``: the input event kind of deblur/deblurnet_matched (undegraded or
     degraded; restore and rdnet always read degraded events and target undegraded).
+    ``init_deblur`` (rdnet only): stage-2 starting weights from a DeblurNet checkpoint.
     ``init_checkpoint``: starting weights (required for rdnet: the stage-1 checkpoint;
     a warning and a random stage 1 otherwise). ``resume``: continue from
     ``out_dir/last.pt`` when it exists (ConfigError if it was written with other
@@ -230,6 +250,7 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
     config = to_dict(cfg)
     extra = {"events": events, "train_path": str(Path(train_path)),
              "init_checkpoint": None if init_checkpoint is None else str(init_checkpoint),
+             "init_deblur": None if init_deblur is None else str(init_deblur),
              "model_cfg": to_dict(model_cfg), "pairs_shape": dataclasses.asdict(data.info),
              "voxel": read_pairs_voxel(train_path)}
 
@@ -254,6 +275,8 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
         log.info("resuming %s from %s at step %d", task, last_path, start)
     elif init_checkpoint is not None:
         _init_from(task, net, Path(init_checkpoint), args)
+    if state is None and init_deblur is not None:
+        _init_deblur(task, net, Path(init_deblur), args)
     elif task == "rdnet":
         log.warning("rdnet without init_checkpoint: stage 1 starts from random weights")
     net.to(device)

@@ -24,7 +24,8 @@ def _tiny_params(p: dict) -> dict:
     p["interpolate"].update(max_upsample=2)
     p["train"].update(iterations=3, batch_size=2, crop=16, log_every=1, ckpt_every=2)
     p["ablation"]["level_bins"] = 2
-    p["study"].update(seeds=[0, 1], parallel=2)      # two seeds, trained in two processes
+    p["study"].update(seeds=[0, 1], parallel=2,      # two seeds, trained in two processes
+                      stress_scales=[0.5, 2.0], stress_rows=["degraded_train", "restored"])
     return p
 
 
@@ -72,6 +73,19 @@ def test_dvc_repro_and_exp_run(tmp_path):
     assert (repo / "results" / "ablation.md").read_text().count("| `") == len(rows)
     bars = json.loads((repo / "results" / "plots" / "psnr_rows.json").read_text())
     assert [b["row"] for b in bars] == list(rows)
+
+    _run([str(DVC), "repro", "stress"], repo, env)
+    stress = json.loads((repo / "metrics" / "stress.json").read_text())
+    assert stress["scales"] == [0.5, 2.0] and set(stress["rows"]) == {"degraded_train", "restored"}
+    assert all(len(v) == 2 and len(v[0]["psnr_seeds"]) == 2 for v in stress["rows"].values())
+    import h5py
+    for scale in (0.5, 2.0):          # every effect of every test sequence at exactly scale x degrade
+        for f in sorted((repo / "data" / "stress" / f"scale_{scale:g}" / "events" / "test").glob("*.h5")):
+            with h5py.File(f, "r") as h:
+                deg = json.loads(h.attrs["degrade_json"])
+            assert deg["refractory_us"] == pytest.approx(scale * params["degrade"]["refractory_us"])
+            assert deg["shot_noise_hz"] == pytest.approx(scale * params["degrade"]["shot_noise_hz"])
+    assert (repo / "results" / "stress" / "psnr_vs_strength.png").stat().st_size > 0
 
     _run(["git", "add", "-A"], repo, env)
     _run(["git", "commit", "-qm", "base"], repo, env)

@@ -114,6 +114,28 @@ def test_stage2_starts_from_stage1_and_can_freeze_it(pairs, tmp_path):
         train("rdnet", cfg, TINY, pairs, tmp_path / "s2c", init_checkpoint=deblur, progress=False)
 
 
+def test_stage2_can_start_from_a_deblurnet(pairs, tmp_path):
+    from rdnet.train.loop import _init_deblur
+    args = model_args("deblur", TINY, 1, 3)
+    deblur = build_seeded(args, 5)
+    path = save_checkpoint(tmp_path / "d.pt", make_checkpoint(deblur, "deblur", args))
+    rd_args = model_args("rdnet", TINY, 1, 3)
+    rdnet = build_seeded(rd_args, 0)
+    assert any(not torch.equal(v, rdnet.deblur.state_dict()[k]) for k, v in deblur.state_dict().items())
+    _init_deblur("rdnet", rdnet, path, rd_args)
+    assert all(torch.equal(v, rdnet.deblur.state_dict()[k]) for k, v in deblur.state_dict().items())
+    with pytest.raises(ConfigError, match="init_deblur"):
+        _init_deblur("deblur", deblur, path, args)
+    other = model_args("deblur", ModelConfig(size="tiny", width=6), 1, 3)
+    wrong = save_checkpoint(tmp_path / "w.pt", make_checkpoint(build_seeded(other, 0), "deblur", other))
+    with pytest.raises(FormatError, match="model_args"):
+        _init_deblur("rdnet", rdnet, wrong, rd_args)
+    cfg = TrainConfig(**{**CFG.__dict__, "iterations": 2})
+    stage1 = train("restore", cfg, TINY, pairs, tmp_path / "s1", progress=False)
+    out = train("rdnet", cfg, TINY, pairs, tmp_path / "rd", init_checkpoint=stage1, init_deblur=path, progress=False)
+    assert read_checkpoint(out)["extra"]["init_deblur"] == str(path)
+
+
 def test_dvclive_metrics_and_cosine_schedule(pairs, tmp_path):
     cfg = TrainConfig(**{**CFG.__dict__, "iterations": 4, "dvclive": True, "lr": 1e-3, "lr_min": 1e-5})
     train("image_only", cfg, TINY, pairs, tmp_path, progress=False)
