@@ -4,7 +4,8 @@ effect fits, report, and the proof on concealed effects.
 - :mod:`~rdnet.calib.context`: the recording's window, segments, pixel sample, static mask.
 - :mod:`~rdnet.calib.stats`: event statistics and the discrepancy metric.
 - :mod:`~rdnet.calib.effects`: the vocabulary of effects and their ``degrade`` keys.
-- :mod:`~rdnet.calib.fit`: basic refit and forward selection with held-out scoring.
+- :mod:`~rdnet.calib.engine`: simulations (pixel circuit cached, noise and timing composed).
+- :mod:`~rdnet.calib.fit`: basic refit, screen, fits, forward selection with held-out scoring.
 - :mod:`~rdnet.calib.calibrate`: :func:`calibrate` (the whole diagnosis -> report dict).
 - :mod:`~rdnet.calib.report`: report.json / report.md / figures.
 - :mod:`~rdnet.calib.consistency`: event-frame consistency.
@@ -14,9 +15,11 @@ report.json schema::
 
     {"recording": str, "base_config": {"sensor": {...}, "degrade": {...}},
      "fitted_config": {"sensor": {...}, "degrade": {...}},
-     "effects": [{"name", "missing", "parameters", "where", "evidence", "confidence", ...}],
+     "effects": [{"name", "missing", "parameters", "where", "evidence", "confidence", "rank",
+                  "heldout_gain", "seed_std", "fitted", "screen_gain", "statistic"}],
      "discrepancy": {"metric", "fit_before", "fit_after", "heldout_before", "heldout_after", ...},
-     "basic_refit": {...}, "mismatch": {...}, "consistency": {...}, "setup": {...}}
+     "basic_refit": {...}, "mismatch": {...}, "consistency": {...},
+     "setup": {..., "simulations", "search": {"search_pixels", "search_stride", "kernel_runs", ...}}}
 """
 from rdnet.calib.calibrate import Calibration, calibrate, finding
 from rdnet.calib.effects import EFFECTS

@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import logging
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from rdnet.calib.consistency import consistency
-from rdnet.calib.context import CalibContext, build_context
+from rdnet.calib.context import CalibContext, build_context, subsample_context
 from rdnet.calib.effects import absent_effects, apply
 from rdnet.calib.fit import FitResult, Objective, SimulateFn, calibrate_fit
 from rdnet.calib.locate import residuals, where
@@ -56,7 +58,11 @@ def _configs_dict(sensor: SensorConfig, degrade: DegradeConfig) -> dict:
 def _evidence(c, fit: FitResult) -> str:
     top = sorted(c.term_gains.items(), key=lambda kv: -kv[1])[:2]
     terms = ", ".join(f"{k} {v:+.3f}" for k, v in top)
-    return (f"held-out discrepancy {c.before_held:.3f} -> {c.evaluation.held_mean:.3f} with it "
+    head = "" if c.fitted else (
+        f"not fitted (its best screen point lowered the fit discrepancy by {c.screen_gain:+.3f}: below "
+        f"calibrate.screen_gain, or not among the calibrate.max_fitted best screened), so never named; "
+        f"that point on the search sample, {len(c.evaluation.held)} seed(s): ")
+    return (head + f"held-out discrepancy {c.before_held:.3f} -> {c.evaluation.held_mean:.3f} with it "
             f"({c.ablated_held:.3f} in its own fit with it switched off); credited gain {c.gain:.3f} "
             f"= {c.z:.1f} x seed std {c.spread:.3f} ({100 * c.relative:.1f} %, round {c.round}); "
             f"statistics improved most: {terms}")
@@ -64,15 +70,67 @@ def _evidence(c, fit: FitResult) -> str:
 
 def calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig,
               cfg: CalibrateConfig = CalibrateConfig(), *, seed: int = 0, interpolate=None,
-              source: str = "recording", simulate_fn: SimulateFn | None = None) -> Calibration:
-    """Diagnose ``rec`` against the simulator configured by ``sensor``/``degrade``."""
+              source: str = "recording", simulate_fn: SimulateFn | None = None,
+              progress: bool = True) -> Calibration:
+    """Diagnose ``rec`` against the simulator configured by ``sensor``/``degrade``.
+
+    ``simulate_fn``: simulate every parameter set with this function instead of the
+    composed engine (:mod:`rdnet.calib.engine`; a slow reference path). ``progress``: show
+    a progress bar (on a terminal)."""
+    with numba_threads(cfg.threads):
+        return _calibrate(rec, sensor, degrade, cfg, seed=seed, interpolate=interpolate, source=source,
+                          simulate_fn=simulate_fn, progress=progress)
+
+
+@contextmanager
+def numba_threads(n: int):
+    """Run the block with ``n`` numba threads and ``n`` OpenCV threads (0: leave the
+    settings alone). The calibration's work comes in short pieces (hundreds of small
+    simulations, one optical flow per frame pair), which run fastest single-threaded
+    when the cores are shared: a parallel region waits for its slowest thread."""
+    import cv2
+    import numba
+    if n <= 0:
+        yield
+        return
+    old, old_cv = numba.get_num_threads(), cv2.getNumThreads()
+    numba.set_num_threads(min(int(n), numba.config.NUMBA_NUM_THREADS))
+    cv2.setNumThreads(int(n))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(old)
+        cv2.setNumThreads(old_cv)
+
+
+def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg: CalibrateConfig, *,
+               seed: int, interpolate, source: str, simulate_fn: SimulateFn | None,
+               progress: bool) -> Calibration:
     t_start = time.perf_counter()
     ctx = build_context(rec, cfg, sensor.log_eps, interpolate=interpolate, source=source)
-    log.info("calibrating %s: %d sampled pixels (stride %d), %d real events, %d simulated frames",
-             source, ctx.n_pixels, ctx.stride, len(ctx.real), len(ctx.sim_t))
-    seeds = [int(seed) * 1000 + k for k in range(cfg.seeds)]
-    obj = Objective(ctx, sensor, degrade, seeds, simulate_fn)
-    fit = calibrate_fit(obj)
+    k = 1
+    while cfg.search_max_sim_steps and k < 64 and \
+            len(ctx.sim_t) * len(range(0, ctx.height, k)) * len(range(0, ctx.width, k)) > cfg.search_max_sim_steps:
+        k += 1
+    sctx = subsample_context(ctx, k)
+    log.info("calibrating %s: %d sampled pixels (stride %d; search: %d, stride %d), %d real events, "
+             "%d simulated frames", source, ctx.n_pixels, ctx.stride, sctx.n_pixels, sctx.stride,
+             len(ctx.real), len(ctx.sim_t))
+    seeds = [int(seed) * 1000 + j for j in range(cfg.seeds)]
+    obj = Objective(ctx, sensor, degrade, seeds, simulate_fn, name="final")
+    fine = obj
+    if cfg.search_seeds < cfg.seeds:
+        # the final pixel sample with the search seeds: shares the engine and simulations
+        fine = Objective(ctx, sensor, degrade, seeds[:cfg.search_seeds], simulate_fn, engine=obj.engine,
+                         name="fine")
+        fine._summaries = obj._summaries
+    search = fine if sctx is ctx else Objective(sctx, sensor, degrade, seeds[:cfg.search_seeds], simulate_fn,
+                                                name="search")
+    bar = tqdm(desc="calibrate", unit="step", disable=None if progress else True)
+    try:
+        fit = calibrate_fit(search, obj, fine, progress=lambda msg: (bar.set_postfix_str(msg), bar.update(1)))
+    finally:
+        bar.close()
 
     base_stats = obj.stats_all({}, seeds[0])
     basic_stats = obj.stats_all(fit.basic_values, seeds[0])
@@ -96,6 +154,8 @@ def calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig,
             "rank": rank.get(eff.name),
             "heldout_gain": float(c.gain) if c else 0.0,
             "seed_std": float(c.spread) if c else 0.0,
+            "fitted": bool(c.fitted) if c else False,
+            "screen_gain": float(c.screen_gain) if c else 0.0,
             "statistic": eff.statistic,
         })
     effects.sort(key=lambda e: (not e["missing"], e["rank"] or 99))
@@ -110,6 +170,9 @@ def calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig,
     }
     floor = noise_floor(obj, fit.final_values)
     runtime = time.perf_counter() - t_start
+    n_sims = sum(o.n_sims for o in {id(o): o for o in (obj, fine, search)}.values())
+    log.info("calibration of %s: %.1f s, %d simulations (%d pixel-circuit runs)", source, runtime,
+             n_sims, fit.search.get("kernel_runs", 0))
     report = {
         "recording": source,
         "base_config": _configs_dict(sensor, degrade),
@@ -139,8 +202,9 @@ def calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig,
         "setup": {"seeds": seeds, "pixel_stride": ctx.stride, "sampled_pixels": ctx.n_pixels,
                   "segments_us": ctx.segments.tolist(), "fit_segments": list(ctx.fit),
                   "heldout_segments": list(ctx.held), "real_events_compared": len(real_ev),
-                  "simulated_frames": int(len(ctx.sim_t)), "simulations": obj.n_sims,
-                  "runtime_s": runtime, "calibrate": to_dict(cfg)},
+                  "simulated_frames": int(len(ctx.sim_t)),
+                  "simulations": n_sims,
+                  "search": fit.search, "runtime_s": runtime, "calibrate": to_dict(cfg)},
     }
     return Calibration(ctx=ctx, fit=fit, report=report, real_stats=obj.real_all, base_stats=base_stats,
                        basic_stats=basic_stats, fitted_stats=fitted_stats, runtime_s=runtime)
@@ -155,8 +219,7 @@ def noise_floor(obj: Objective, values: dict) -> float:
     from rdnet.calib import stats as st
     if not needs_rng(obj.configs(values)[1]):
         return 0.0
-    held = [st.aggregate(st.summarize(obj.simulate(values, s), obj.ctx), obj.ctx, obj.ctx.held)
-            for s in obj.seeds]
+    held = [st.aggregate(obj.summary(values, s), obj.ctx, obj.ctx.held) for s in obj.seeds]
     return float(np.mean([st.discrepancy(a, b, obj.ctx)[0] for a, b in combinations(held, 2)]))
 
 

@@ -11,11 +11,15 @@ from rdnet.sim.settings import DegradeConfig, SensorConfig
 @dataclass(frozen=True)
 class Param:
     """One fitted parameter: ``key`` of ``degrade`` (or ``threshold_scale``, the common
-    factor of both sensor thresholds), search range [lo, hi], searched in log scale."""
+    factor of both sensor thresholds), search range [lo, hi], searched in log scale.
+    ``weak``: where in the range the effect is weakest ('lo', 'hi', or 'off': its OFF
+    value inside the range); the screen does not simulate that point (it is the current
+    config, nearly)."""
 
     key: str
     lo: float
     hi: float
+    weak: str = "lo"
 
 
 @dataclass(frozen=True)
@@ -46,9 +50,9 @@ THRESHOLD_SCALE = Param("threshold_scale", 0.4, 2.5)
 EFFECTS: dict[str, Effect] = {e.name: e for e in (
     Effect("threshold_mismatch", (Param("threshold_sigma", 0.01, 0.6),), "pixel_quantiles",
            "per-pixel spread of the contrast thresholds (fixed-pattern mismatch)", True),
-    Effect("onoff_asymmetry", (Param("onoff_ratio", 0.4, 2.5),), "on_fraction",
+    Effect("onoff_asymmetry", (Param("onoff_ratio", 0.4, 2.5, "off"),), "on_fraction",
            "ON and OFF contrast thresholds differ", True),
-    Effect("bandwidth", (Param("cutoff_hz", 1.0, 3000.0),), "rate_vs_intensity",
+    Effect("bandwidth", (Param("cutoff_hz", 1.0, 3000.0, "hi"),), "rate_vs_intensity",
            "photoreceptor low-pass filter whose cutoff falls with intensity (slow dark pixels)", True),
     Effect("refractory_period", (Param("refractory_us", 20.0, 50000.0),), "iei",
            "dead time after each event of a pixel", True),

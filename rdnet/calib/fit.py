@@ -1,24 +1,58 @@
 """Fitting the simulator to a recording.
 
-1. **Basic refit**: the common factor of both contrast thresholds and the parameters of
-   the effects the base config already has are re-fitted first (coordinate descent of
-   1-D golden-section searches in log scale), so a wrong value is not mistaken for
-   missing physics.
-2. **Forward selection** over the effects the base config leaves out: each candidate's
-   parameters are fitted on the *fit* segments (log-scale grid, or a data-driven first
-   guess, then golden-section refinement, then the thresholds and the effect refined
-   together); its *held-out* gain is the drop of the discrepancy on the other segments.
-   The best candidate is added when its gain exceeds ``significance`` x the seed spread
-   of the discrepancy and ``min_relative_gain`` of it; then the remaining candidates are
-   re-fitted on top of it, and so on (at most ``max_effects``).
+The search and the verdict run at three levels (:class:`Objective` each):
+
+* **search**: a pixel sample of at most ``search_max_sim_steps`` pixel-frames with the
+  first ``search_seeds`` seeds fits the thresholds and the effects that act in the pixel
+  circuit (every evaluation reruns the circuit);
+* **fine**: the final pixel sample with the search seeds fits the additive effects (noise,
+  hot pixels, timing; their evaluations reuse the cached circuit events, so the large
+  sample costs little);
+* **final**: the final pixel sample with all ``seeds`` scores what the search found: every
+  held-out gain, seed spread and significance is computed there.
+
+When the recording fits the search budget the three share one sample (and one cache).
+
+Steps:
+
+1. **Basic refit**: the common factor of both contrast thresholds is first moved until the
+   simulated event count matches the recording (secant steps on log count against log
+   factor), then refined by golden section on the discrepancy; then the parameters of the
+   effects the base config already has (coordinate golden-section searches in log scale).
+2. **Screen**: every effect the base config leaves out is tried at a data-driven first
+   guess (hot pixels, latency, shot noise, leak) or at ``search_points`` log-spaced values
+   of its range (its weak end left out: that is the current config, nearly). An effect
+   that changes the event count (``Effect.changes_count``) is tried at *count-matched*
+   thresholds (:class:`Compensated`), since that is how such an effect is concealed.
+   Effects whose best screen point lowers the fit discrepancy by at least ``screen_gain``
+   of the fit discrepancy after the basic refit are *plausible*. Additive effects (noise,
+   hot pixels, timing) reuse the cached pixel-circuit events, so they are screened and
+   fitted on the final pixel sample at the current thresholds.
+3. **Fit** (plausible effects: at most ``max_fitted`` of those that act in the pixel
+   circuit, every additive one): golden section between the neighbours of the best
+   screen point (or around the guess), then the configured effects' parameters, then the
+   thresholds, the effect and the configured effects refined together.
+4. **Forward selection**: every fitted candidate is scored at the final level: its held-out
+   gain (against the current config and against its own fit with the effect switched off)
+   must exceed ``significance`` x the seed spread and ``min_relative_gain`` of the held-out
+   discrepancy after the basic refit. The best significant candidate is added; the other
+   fitted candidates that helped are tried again at their fit on top of it, and fitted
+   again if still plausible (at most ``max_effects`` rounds). Effects that do not pass the
+   screen are reported with their search-level numbers and cannot be named.
+5. **Polish**: the thresholds, the named effects' and the configured effects' parameters
+   are refined together in a narrow range; the polished config is kept when its fit
+   discrepancy (final level) is no worse.
 
 All candidates are simulated with the same seeds (common random numbers), so the
-differences between candidates are not drowned in simulation noise.
+differences between candidates are not drowned in simulation noise; and the simulations
+go through :class:`rdnet.calib.engine.Engine`, which reuses the pixel-circuit events of
+a config for every value of the additive effects (noise, hot pixels, timing).
 """
 from __future__ import annotations
 
 import logging
 import math
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -27,6 +61,7 @@ import numpy as np
 from rdnet.calib import stats as st
 from rdnet.calib.context import CalibContext
 from rdnet.calib.effects import OFF, THRESHOLD_SCALE, Effect, Param, absent_effects, apply, present_effects
+from rdnet.calib.engine import ADDITIVE_KEYS, Engine
 from rdnet.events.core import Events
 from rdnet.sim.effects import needs_rng
 from rdnet.sim.settings import DegradeConfig, SensorConfig
@@ -34,9 +69,16 @@ from rdnet.sim.settings import DegradeConfig, SensorConfig
 log = logging.getLogger(__name__)
 
 SimulateFn = Callable[[np.ndarray, np.ndarray, SensorConfig, DegradeConfig, np.random.Generator], Events]
+Evaluator = Callable[[dict], "Evaluation"]
 GOLDEN = (math.sqrt(5) - 1) / 2
 #: smallest seed spread, as a fraction of the held-out discrepancy
 SPREAD_FLOOR = 0.01
+#: summaries (one simulation's per-segment counts) kept per objective
+SUMMARY_CACHE = 64
+#: count mismatch (log ratio) a screen point may keep; the fits match to 2 %
+SCREEN_COUNT_TOL = 0.05
+#: confidence ceiling of an effect that did not pass the screen (it cannot be named)
+SCREENED_CONFIDENCE = 0.25
 
 
 def default_simulate(images, t_us, sensor, degrade, rng) -> Events:
@@ -48,13 +90,15 @@ def default_simulate(images, t_us, sensor, degrade, rng) -> Events:
 
 @dataclass(frozen=True)
 class Evaluation:
-    """Discrepancy of one parameter set, per seed, on the fit and held-out segments."""
+    """Discrepancy of one parameter set, per seed, on the fit and held-out segments;
+    ``fit_count``: mean simulated event count on the fit segments."""
 
     values: dict
     fit: np.ndarray
     held: np.ndarray
     fit_terms: dict
     held_terms: dict
+    fit_count: float = 0.0
 
     @property
     def fit_mean(self) -> float:
@@ -65,119 +109,168 @@ class Evaluation:
         return float(self.held.mean())
 
 
+def _key(values: dict) -> tuple:
+    return tuple(sorted((k, round(float(v), 9)) for k, v in values.items()))
+
+
 class Objective:
-    """Simulates parameter sets (memoised) and scores them against the recording."""
+    """Simulates parameter sets (memoised) on one context with one list of seeds and
+    scores them against the recording. ``simulate_fn`` replaces the engine (reference
+    path: the whole simulator per parameter set)."""
 
     def __init__(self, ctx: CalibContext, sensor: SensorConfig, degrade: DegradeConfig,
-                 seeds: list[int], simulate_fn: SimulateFn | None = None):
+                 seeds: list[int], simulate_fn: SimulateFn | None = None, engine: Engine | None = None,
+                 name: str = "final"):
         self.ctx, self.sensor, self.degrade, self.seeds = ctx, sensor, degrade, list(seeds)
-        self.simulate_fn = simulate_fn or default_simulate
+        self.simulate_fn = simulate_fn
+        self.engine = engine or Engine(ctx)
+        self.name = name
         real = st.summarize(ctx.real, ctx)
         self.real_fit = st.aggregate(real, ctx, ctx.fit)
         self.real_held = st.aggregate(real, ctx, ctx.held)
         self.real_all = st.aggregate(real, ctx, range(len(ctx.segments)))
+        self.real_fit_count = float(self.real_fit["count"])
         self.cache: dict = {}
+        self._summaries: OrderedDict = OrderedDict()
         self.n_sims = 0
 
     def configs(self, values: dict) -> tuple[SensorConfig, DegradeConfig]:
         return apply(self.sensor, self.degrade, values)
 
-    def simulate(self, values: dict, seed: int) -> Events:
+    def seeds_for(self, values: dict) -> list[int]:
+        """All seeds, or the first when the config draws no random numbers."""
+        return self.seeds if needs_rng(self.configs(values)[1]) else self.seeds[:1]
+
+    def summary(self, values: dict, seed: int) -> st.Summary:
+        key = (_key(values), seed)
+        hit = self._summaries.get(key)
+        if hit is not None:
+            self._summaries.move_to_end(key)
+            return hit
         sensor, degrade = self.configs(values)
         self.n_sims += 1
-        return self.simulate_fn(self.ctx.sim_images, self.ctx.sim_t, sensor, degrade,
-                                np.random.default_rng(seed))
+        if self.simulate_fn is not None:
+            ev = self.simulate_fn(self.ctx.sim_images, self.ctx.sim_t, sensor, degrade, np.random.default_rng(seed))
+            s = st.summarize(ev, self.ctx)
+        else:
+            s = self.engine.summary(sensor, degrade, seed)
+        self._summaries[key] = s
+        if len(self._summaries) > SUMMARY_CACHE:
+            self._summaries.popitem(last=False)
+        return s
+
+    def simulate(self, values: dict, seed: int) -> Events:
+        """Time-sorted events of one simulation (for the report)."""
+        sensor, degrade = self.configs(values)
+        if self.simulate_fn is not None:
+            return self.simulate_fn(self.ctx.sim_images, self.ctx.sim_t, sensor, degrade, np.random.default_rng(seed))
+        return self.engine.events(sensor, degrade, seed)
 
     def __call__(self, values: dict) -> Evaluation:
-        key = tuple(sorted((k, round(float(v), 9)) for k, v in values.items()))
+        key = _key(values)
         hit = self.cache.get(key)
         if hit is not None:
             return hit
-        fit, held, ft, ht = [], [], [], []
-        # a config without random effects gives the same events for every seed
-        seeds = self.seeds if needs_rng(self.configs(values)[1]) else self.seeds[:1]
+        fit, held, ft, ht, cnt = [], [], [], [], []
+        seeds = self.seeds_for(values)
         for seed in seeds:
-            s = st.summarize(self.simulate(values, seed), self.ctx)
-            df, tf = st.discrepancy(st.aggregate(s, self.ctx, self.ctx.fit), self.real_fit, self.ctx)
+            s = self.summary(values, seed)
+            af = st.aggregate(s, self.ctx, self.ctx.fit)
+            df, tf = st.discrepancy(af, self.real_fit, self.ctx)
             dh, th = st.discrepancy(st.aggregate(s, self.ctx, self.ctx.held), self.real_held, self.ctx)
-            fit.append(df); held.append(dh); ft.append(tf); ht.append(th)
+            fit.append(df); held.append(dh); ft.append(tf); ht.append(th); cnt.append(float(af["count"]))
+        # a deterministic config gives the same events for every seed
         k = len(self.seeds) // len(seeds)
         fit, held, ft, ht = fit * k, held * k, ft * k, ht * k
         names = list(ft[0])
         ev = Evaluation(dict(values), np.array(fit), np.array(held),
-                        {k: np.array([t[k] for t in ft]) for k in names},
-                        {k: np.array([t[k] for t in ht]) for k in names})
+                        {n: np.array([t[n] for t in ft]) for n in names},
+                        {n: np.array([t[n] for t in ht]) for n in names}, float(np.mean(cnt)))
         self.cache[key] = ev
         return ev
 
-    def stats_all(self, values: dict, seed: int) -> dict:
-        """Statistics of one simulation over the whole compared window (for figures)."""
-        s = st.summarize(self.simulate(values, seed), self.ctx)
+    def stats_all(self, values: dict, seed: int | None = None) -> dict:
+        """Statistics of one simulation over the whole compared window."""
+        s = self.summary(values, self.seeds[0] if seed is None else seed)
         return st.aggregate(s, self.ctx, range(len(self.ctx.segments)))
 
 
 # --- 1-D searches in log scale ----------------------------------------------------------
 
-def golden(obj: Objective, values: dict, key: str, lo: float, hi: float, steps: int) -> dict:
+def golden(f: Evaluator, values: dict, key: str, lo: float, hi: float, steps: int) -> dict:
     """Golden-section search of ``key`` in [lo, hi] (log scale) minimising the mean fit
-    discrepancy; returns the best values seen (the start included)."""
-    start = obj(values)
+    discrepancy of the evaluator ``f`` (``steps`` evaluations); returns the best values
+    seen, the start included (an evaluator may move other keys, e.g. the thresholds)."""
+    start = f(values)
     best, best_f = dict(start.values), start.fit_mean
+    if steps <= 0 or not lo < hi:
+        return best
     a, b = math.log(lo), math.log(hi)
     c = b - GOLDEN * (b - a)
     d = a + GOLDEN * (b - a)
 
-    def f(u):
+    def g(u):
         nonlocal best, best_f
         v = dict(values)
         v[key] = math.exp(u)
-        ev = obj(v)
+        ev = f(v)
         r = ev.fit_mean
         if r < best_f:
             best, best_f = dict(ev.values), r
         return r
 
-    fc, fd = f(c), f(d)
+    fc = g(c)
+    if steps == 1:
+        return best
+    fd = g(d)
     for _ in range(max(0, steps - 2)):
         if fc < fd:
             b, d, fd = d, c, fc
             c = b - GOLDEN * (b - a)
-            fc = f(c)
+            fc = g(c)
         else:
             a, c, fc = c, d, fd
             d = a + GOLDEN * (b - a)
-            fd = f(d)
+            fd = g(d)
     return best
 
 
-def grid_then_golden(obj: Objective, values: dict, p: Param, points: int, steps: int) -> dict:
-    """Log-spaced grid over the whole range of ``p``, then golden section between the
-    neighbours of the best grid point."""
-    grid = np.geomspace(p.lo, p.hi, points)
-    evs = []
-    for g in grid:
-        v = dict(values)
-        v[p.key] = float(g)
-        evs.append(obj(v))
-    i = int(np.argmin([e.fit_mean for e in evs]))
-    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, points - 1)]
-    return golden(obj, evs[i].values, p.key, lo, hi, steps)
+class Compensated:
+    """The objective at count-matched thresholds: evaluating a parameter set also moves the
+    common threshold factor until the simulated event count on the fit segments matches
+    the recording (at most ``steps`` secant steps on log count against log factor, the
+    first with slope ``beta``), and returns the best evaluation seen. An effect that
+    removes or adds signal events is concealed by shifted thresholds, so it must be
+    compared at its own thresholds (a cheap profile over the factor)."""
 
-
-class Profiled:
-    """The objective with ``threshold_scale`` optimised out: evaluating a parameter set
-    first runs a short golden-section search of the threshold factor (within ``factor``
-    of its current value), so an effect that changes the event count is compared at its
-    best thresholds (a profile likelihood; it is how such an effect is concealed)."""
-
-    def __init__(self, obj: Objective, factor: float = 1.6, steps: int = 4):
-        self.obj, self.factor, self.steps = obj, factor, steps
+    def __init__(self, obj: Objective, beta: float = 1.0, steps: int = 2, tol: float = 0.02):
+        self.obj, self.beta, self.steps, self.tol = obj, beta, steps, tol
         self.ctx = obj.ctx
 
     def __call__(self, values: dict) -> Evaluation:
-        c = values.get(THRESHOLD_SCALE.key, 1.0)
-        v = golden(self.obj, values, THRESHOLD_SCALE.key, c / self.factor, c * self.factor, self.steps)
-        return self.obj(v)
+        obj = self.obj
+        target = max(obj.real_fit_count, 1.0)
+        s = float(values.get(THRESHOLD_SCALE.key, 1.0))
+        ev = best = obj(values)
+        beta = self.beta
+        prev = None
+        for _ in range(self.steps):
+            n = ev.fit_count
+            if n <= 0:
+                break
+            r = math.log(n / target)
+            if abs(r) < self.tol:
+                break
+            if prev is not None and prev[0] != s and prev[1] != r:
+                beta = float(np.clip(-(r - prev[1]) / (math.log(s) - math.log(prev[0])), 0.2, 5.0))
+            prev = (s, r)
+            s = float(np.clip(s * math.exp(r / beta), THRESHOLD_SCALE.lo * 0.5, THRESHOLD_SCALE.hi * 2.0))
+            v = dict(values)
+            v[THRESHOLD_SCALE.key] = s
+            ev = obj(v)
+            if ev.fit_mean < best.fit_mean:
+                best = ev
+        return best
 
 
 def _around(v: float, factor: float, p: Param) -> tuple[float, float]:
@@ -193,7 +286,7 @@ def _guess(obj: Objective, values: dict, effect: Effect) -> dict | None:
     of static pixels); None = use the grid."""
     ctx = obj.ctx
     if effect.name == "latency":
-        sim = obj.stats_all(values, obj.seeds[0])
+        sim = obj.stats_all(values)
         real = obj.real_all
         lag = st.xcorr_lag_us(sim["rate_time"], real["rate_time"], real["time_mask"],
                               float(ctx.cfg.time_bin_us), float(ctx.cfg.max_lag_us))
@@ -205,7 +298,7 @@ def _guess(obj: Objective, values: dict, effect: Effect) -> dict | None:
     if effect.name in ("shot_noise", "leak_events"):
         # excess event rate of the static pixels: all of it (shot noise, balanced, its rate
         # falls to shot_noise_bright_factor at I = 1) or the excess of ON over OFF (leak)
-        sim = obj.stats_all(values, obj.seeds[0])
+        sim = obj.stats_all(values)
         real = obj.real_all
         if effect.name == "shot_noise":
             _, d = obj.configs(values)
@@ -223,7 +316,7 @@ def _guess(obj: Objective, values: dict, effect: Effect) -> dict | None:
         v[p.key] = float(np.clip(excess, p.lo, p.hi))
         return v
     if effect.name == "hot_pixels":
-        sim = obj.stats_all(values, obj.seeds[0])["net_rate"].ravel()
+        sim = obj.stats_all(values)["net_rate"].ravel()
         real = obj.real_all["net_rate"].ravel()
         top = np.sort(sim)[-max(1, sim.size // 1000):]
         thresh = 2.0 * float(top.mean()) + 1.0
@@ -232,6 +325,8 @@ def _guess(obj: Objective, values: dict, effect: Effect) -> dict | None:
             if hot.size == 0:
                 return None
             hot = real[real > max(thresh, 0.5 * float(np.median(hot)))]
+        if hot.size == 0:
+            return None
         v = dict(values)
         v["hot_pixel_fraction"] = float(np.clip(hot.size / real.size, 0.0005, 0.05))
         v["hot_pixel_hz"] = float(np.clip(np.median(hot) - float(np.mean(sim)), 3.0, 3000.0))
@@ -241,17 +336,17 @@ def _guess(obj: Objective, values: dict, effect: Effect) -> dict | None:
 
 # --- effect fits -----------------------------------------------------------------------------
 
-def refine(obj: Objective, values: dict, keys_params: list[Param], rounds: int, steps: int,
+def refine(f: Evaluator, values: dict, params: list[Param], rounds: int, steps: int,
            factor: float) -> dict:
     """Coordinate descent: golden section of each parameter within ``factor`` of its value."""
     v = dict(values)
     for _ in range(rounds):
-        for p in keys_params:
-            cur = v.get(p.key, 0.0)
+        for p in params:
+            cur = v.get(p.key, 1.0 if p.key == THRESHOLD_SCALE.key else 0.0)
             if cur <= 0:
                 continue
             lo, hi = _around(cur, factor, p)
-            v = golden(obj, v, p.key, lo, hi, steps)
+            v = golden(f, v, p.key, lo, hi, steps)
     return v
 
 
@@ -261,38 +356,149 @@ def present_params(obj: Objective) -> list[Param]:
             if getattr(obj.degrade, p.key) != OFF.get(p.key, 0.0)]
 
 
-def fit_basic(obj: Objective, values: dict) -> dict:
-    """Step 2: thresholds (common factor) and the present effects' parameters."""
+def additive(p: Param) -> bool:
+    """Whether the parameter acts after the pixel circuit (noise, hot pixels, timing): its
+    evaluations reuse the cached pixel-circuit events, so it is fitted on the final pixel
+    sample."""
+    return p.key in ADDITIVE_KEYS
+
+
+def fit_basic(obj: Objective, fine: Objective | None = None) -> tuple[dict, float]:
+    """Step 1: thresholds (common factor; count matching, then golden section) and the
+    present effects' parameters (those acting in the pixel circuit on ``obj``, the additive
+    ones on ``fine``, default ``obj``). Returns the values and the slope -d log count /
+    d log factor measured on the way (used by :class:`Compensated`)."""
     cfg = obj.ctx.cfg
-    v = grid_then_golden(obj, values, THRESHOLD_SCALE, cfg.search_points + 2, cfg.refine_steps + 2)
+    fine = fine or obj
+    comp = Compensated(obj, beta=1.0, steps=4, tol=0.01)
+    start = comp({})
+    beta = _slope(obj)
+    s0 = start.values.get(THRESHOLD_SCALE.key, 1.0)
+    v = golden(obj, start.values, THRESHOLD_SCALE.key, s0 / 1.4, s0 * 1.4, cfg.refine_steps + 1)
+    if fine is not obj:
+        # the search sample is coarser: the thresholds the additive effects are fitted at
+        # (on the final sample, without circuit reruns) are refined there once
+        s0 = v.get(THRESHOLD_SCALE.key, 1.0)
+        v = golden(fine, v, THRESHOLD_SCALE.key, s0 / 1.12, s0 * 1.12, max(2, cfg.refine_steps - 1))
     params = present_params(obj)
+    if not params:
+        return v, beta
     for p in params:
         v.setdefault(p.key, float(getattr(obj.degrade, p.key)))
-    return refine(obj, v, params + [THRESHOLD_SCALE], rounds=2, steps=cfg.refine_steps, factor=4.0)
+    inner = [p for p in params if not additive(p)]
+    outer = [p for p in params if additive(p)]
+    if inner:
+        v = refine(obj, v, inner, rounds=2, steps=cfg.refine_steps, factor=4.0)
+    if outer:
+        for e in present_effects(obj.degrade):
+            g = _guess(fine, v, e) if e.name == "shot_noise" else None
+            if g is not None:   # the guess is an excess over the current rate
+                p = e.params[0]
+                g[p.key] = float(np.clip(v[p.key] + g[p.key], p.lo, p.hi))
+                v = g if fine(g).fit_mean < fine(v).fit_mean else v
+        v = refine(fine, v, outer, rounds=2, steps=cfg.refine_steps, factor=4.0)
+    return refine(fine, v, [THRESHOLD_SCALE] + params, rounds=1, steps=cfg.refine_steps - 1, factor=1.25), beta
 
 
-def fit_effect(obj: Objective, values: dict, effect: Effect) -> dict:
-    """Fit ``effect``'s parameters on top of ``values``, then refine them together with
-    the threshold factor (a missing effect is often concealed by shifted thresholds) and
-    the configured effects' parameters."""
+def _slope(obj: Objective) -> float:
+    """-d log count / d log threshold factor from the threshold-only evaluations so far."""
+    pts = [(ev.values.get(THRESHOLD_SCALE.key, 1.0), ev.fit_count) for ev in obj.cache.values()
+           if set(ev.values) <= {THRESHOLD_SCALE.key} and ev.fit_count > 0]
+    if len(pts) < 2:
+        return 1.0
+    x = np.log([p[0] for p in pts])
+    y = np.log([p[1] for p in pts])
+    if np.ptp(x) <= 0:
+        return 1.0
+    return float(np.clip(-np.polyfit(x, y, 1)[0], 0.2, 5.0))
+
+
+def screen_grid(p: Param, points: int) -> tuple[np.ndarray, np.ndarray]:
+    """``points`` log-spaced values over ``p``'s range and the indices of those the screen
+    simulates: all but the weak end (or the OFF value, added when it lies inside the range),
+    which is the current config, nearly."""
+    grid = np.geomspace(p.lo, p.hi, points)
+    if p.weak == "off":
+        off = OFF.get(p.key, 0.0)
+        if p.lo < off < p.hi:
+            grid = np.unique(np.concatenate([grid, [off]]))
+        return grid, np.flatnonzero(grid != off)
+    return grid, (np.arange(1, points) if p.weak == "lo" else np.arange(points - 1))
+
+
+def screen(obj: Objective, values: dict, effect: Effect, points: int, beta: float
+           ) -> tuple[list[Evaluation], np.ndarray | None, np.ndarray | None]:
+    """Step 2: the effect at its data-driven guess or on a log grid of its range (at
+    count-matched thresholds when it changes the count; each grid point starts from the
+    thresholds matched at the previous one); an additive effect (cheap: no pixel-circuit
+    run) at both. Returns the evaluations, the grid and the indices of the grid points
+    evaluated (None when the guess is kept)."""
+    f = Compensated(obj, beta, tol=SCREEN_COUNT_TOL) if effect.changes_count else obj
+    g = _guess(obj, values, effect)
+    cheap = all(additive(p) for p in effect.params)
+    if g is not None and not cheap:
+        return [f(g)], None, None
+    base = dict(values)
+    for p in effect.params:
+        base.setdefault(p.key, math.sqrt(p.lo * p.hi))
+    p = effect.params[0]
+    grid, keep = screen_grid(p, points)
+    if p.weak == "hi":          # from the weak end, so each point starts near its thresholds
+        keep = keep[::-1]
+    evs = []
+    for j in keep:
+        v = dict(base)
+        v[p.key] = float(grid[j])
+        ev = f(v)
+        evs.append(ev)
+        if effect.changes_count and THRESHOLD_SCALE.key in ev.values:
+            base[THRESHOLD_SCALE.key] = ev.values[THRESHOLD_SCALE.key]
+    if g is not None:           # an additive effect: its guess and the grid (cheap)
+        ge = f(g)
+        if ge.fit_mean < min(e.fit_mean for e in evs):
+            return [ge], None, None
+    return evs, grid, keep
+
+
+def rescreen(obj: Objective, values: dict, effect: Effect, previous: dict, beta: float) -> list[Evaluation]:
+    """Step 2 in a later round: the effect at its previous fit, on top of ``values``."""
+    f = Compensated(obj, beta) if effect.changes_count else obj
+    v = dict(values)
+    v.update({k: previous[k] for k in effect.keys if k in previous})
+    return [f(v)]
+
+
+def fit_effect(obj: Objective, values: dict, effect: Effect, screened: list[Evaluation],
+               grid: np.ndarray | None, keep: np.ndarray | None, beta: float, thresholds: bool = True,
+               refit: bool = False) -> dict:
+    """Step 3: refine the best screen point of ``effect`` on top of ``values``, then the
+    configured effects' parameters (they may have absorbed part of this effect in the basic
+    refit, e.g. jitter smearing out a latency), then thresholds, effect and configured
+    effects together (a missing effect is often concealed by shifted thresholds;
+    ``thresholds=False``: the thresholds and the pixel-circuit effects stay). ``refit``: a
+    later round, starting from the effect's previous fit (a narrower first refinement)."""
     cfg = obj.ctx.cfg
-    v = _guess(obj, values, effect)
-    if v is None:
-        v = dict(values)
-        for p in effect.params:
-            v.setdefault(p.key, math.sqrt(p.lo * p.hi))
-        search = Profiled(obj) if effect.changes_count else obj
-        for p in effect.params:
-            v = grid_then_golden(search, v, p, cfg.search_points, cfg.refine_steps)
+    f = Compensated(obj, beta) if effect.changes_count else obj
+    i = int(np.argmin([e.fit_mean for e in screened]))
+    v = dict(screened[i].values)
+    if grid is not None:
+        p = effect.params[0]
+        i = int(keep[i])
+        lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+        v = golden(f, v, p.key, lo, hi, cfg.refine_steps)
+        for q in effect.params[1:]:
+            v = golden(f, v, q.key, q.lo, q.hi, cfg.refine_steps)
+    elif refit:
+        v = refine(f, v, list(effect.params), rounds=1, steps=max(2, cfg.refine_steps - 1), factor=1.6)
     else:
-        v = refine(obj, v, list(effect.params), rounds=1, steps=cfg.refine_steps, factor=3.0)
-    # the configured effects may have absorbed part of this one in the basic refit
-    # (e.g. jitter smearing out a latency): refit them with it
+        v = refine(f, v, list(effect.params), rounds=1, steps=cfg.refine_steps, factor=3.0)
     present = present_params(obj)
+    if not thresholds:          # an additive effect on the final sample: no pixel-circuit reruns
+        present = [p for p in present if additive(p)]
     if present:
-        v = refine(obj, v, present, rounds=1, steps=cfg.refine_steps + 1, factor=8.0)
-    return refine(obj, v, [THRESHOLD_SCALE] + list(effect.params) + present, rounds=1,
-                  steps=max(3, cfg.refine_steps - 1), factor=1.5)
+        v = refine(obj, v, present, rounds=1, steps=cfg.refine_steps, factor=8.0)
+    return refine(obj, v, ([THRESHOLD_SCALE] if thresholds else []) + list(effect.params) + present, rounds=1,
+                  steps=max(2, cfg.refine_steps - 2), factor=1.5)
 
 
 @dataclass
@@ -310,13 +516,16 @@ class Candidate:
     before_held: float = 0.0    # held-out discrepancy of the config it is added to
     ablated_held: float = float("nan")   # ... of its own fit with the effect off
     term_gains: dict = field(default_factory=dict)
+    screen_gain: float = 0.0    # fit-discrepancy drop of its best screen point (search level)
+    fitted: bool = False        # passed the screen and was fitted
 
 
 def _gain(before: Evaluation, after: Evaluation) -> tuple[float, float]:
     """Mean held-out gain and the seed spread of the held-out discrepancy (floored at
     SPREAD_FLOOR of it, since a config without random effects has no seed spread)."""
     gain = float((before.held - after.held).mean())
-    seed_std = math.sqrt(0.5 * (before.held.var(ddof=1) + after.held.var(ddof=1)))
+    n = min(before.held.size, after.held.size)
+    seed_std = math.sqrt(0.5 * (before.held.var(ddof=1) + after.held.var(ddof=1))) if n > 1 else 0.0
     return gain, float(max(seed_std, SPREAD_FLOOR * before.held_mean))
 
 
@@ -371,34 +580,89 @@ class FitResult:
     candidates: dict         # effect name -> last Candidate (every absent effect)
     first_round: list        # Candidates of round 1 sorted by gain (the ranking)
     n_sims: int
+    search: dict = field(default_factory=dict)   # search-level bookkeeping for the report
 
 
-def calibrate_fit(obj: Objective) -> FitResult:
-    """Steps 2 and 3: basic refit, then forward selection of missing effects."""
-    cfg = obj.ctx.cfg
-    base = obj({})
+def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objective | None = None,
+                  progress=None) -> FitResult:
+    """Steps 1-5: basic refit, screen, fits, forward selection, polish. ``search`` fits the
+    thresholds and the pixel-circuit effects, ``fine`` (the final pixel sample with the
+    search seeds; default ``search``) the additive effects and the polish, ``final``
+    (default ``search``) scores. ``progress``: optional callable(str) per finished step."""
+    final = final or search
+    fine = fine or search
+    cfg = search.ctx.cfg
+
+    def tick(msg: str) -> None:
+        log.debug("%s: %d + %d simulations, %d + %d pixel-circuit runs", msg, search.n_sims,
+                  final.n_sims + (fine.n_sims if fine is not search else 0) if final is not search else 0,
+                  search.engine.n_kernel, final.engine.n_kernel if final.engine is not search.engine else 0)
+        if progress is not None:
+            progress(msg)
+
+    def level(effect: Effect) -> Objective:
+        return fine if all(additive(p) for p in effect.params) else search
+
+    base = final({})
     log.info("base: fit %.3f held-out %.3f", base.fit_mean, base.held_mean)
-    values = fit_basic(obj, {})
-    basic = obj(values)
-    log.info("basic refit %s: fit %.3f held-out %.3f", _fmt(values), basic.fit_mean, basic.held_mean)
+    values, beta = fit_basic(search, fine)
+    basic = final(values)
+    tick("basic refit")
+    log.info("basic refit %s: fit %.3f held-out %.3f (count slope %.2f)", _fmt(values), basic.fit_mean,
+             basic.held_mean, beta)
     current, cur_eval = values, basic
-    remaining = [e for e in absent_effects(obj.degrade) if not cfg.candidates or e.name in cfg.candidates]
+    remaining = [e for e in absent_effects(search.degrade) if not cfg.candidates or e.name in cfg.candidates]
     selected: list[Candidate] = []
     candidates: dict[str, Candidate] = {}
     first_round: list[Candidate] = []
     rnd = 0
     while remaining and len(selected) < cfg.max_effects:
         rnd += 1
-        round_c = []
+        screened = {}
         for eff in remaining:
-            v = fit_effect(obj, current, eff)
-            c = score(Candidate(eff, v, obj(v), round=rnd), cur_eval, cfg, obj(ablate(v, eff)),
-                      reference=basic.held_mean)
-            log.info("round %d %-19s gain %.4f (z %.1f, rel %.3f) %s", rnd, eff.name, c.gain, c.z,
-                     c.relative, _fmt({p.key: v.get(p.key, 0.0) for p in eff.params}))
+            obj = level(eff)
+            prev = candidates.get(eff.name)
+            if prev is not None:
+                evs, grid, keep = rescreen(obj, current, eff, prev.values, beta), None, None
+            else:
+                evs, grid, keep = screen(obj, current, eff, cfg.search_points, beta)
+            # the gain relative to the fit discrepancy after the basic refit, as the
+            # significance rule: a later effect must explain a share of the original mismatch
+            screened[eff.name] = (evs, grid, keep, obj(current).fit_mean - min(e.fit_mean for e in evs),
+                                  obj(values).fit_mean)
+        rel = {k: v[3] / max(v[4], 1e-12) for k, v in screened.items()}
+        order = sorted(remaining, key=lambda e: -rel[e.name])
+        # every plausible additive effect is fitted (cheap), at most max_fitted of the others
+        plausible = [e.name for e in order if rel[e.name] > cfg.screen_gain and level(e) is not search]
+        plausible += [e.name for e in order if rel[e.name] > cfg.screen_gain and level(e) is search][:cfg.max_fitted]
+        tick(f"round {rnd} screen")
+        log.info("round %d screen: %s; fitting %s", rnd,
+                 ", ".join(f"{e.name} {100 * rel[e.name]:+.1f} %" for e in order), plausible or "none")
+        round_c = []
+        for eff in order:
+            obj = level(eff)
+            evs, grid, keep, sgain, _ = screened[eff.name]
+            if eff.name in plausible:
+                v = fit_effect(obj, current, eff, evs, grid, keep, beta, thresholds=obj is search,
+                               refit=eff.name in candidates)
+                c = score(Candidate(eff, v, final(v), round=rnd, screen_gain=sgain, fitted=True),
+                          cur_eval, cfg, final(ablate(v, eff)), reference=basic.held_mean)
+                tick(f"round {rnd} {eff.name}")
+            else:
+                # not plausible: reported with the search-level evidence of its best screen
+                # point, never named (no final scoring)
+                v = dict(min(evs, key=lambda e: e.fit_mean).values)
+                c = score(Candidate(eff, v, obj(v), round=rnd, screen_gain=sgain, fitted=False),
+                          obj(current), cfg, obj(ablate(v, eff)), reference=obj(values).held_mean)
+                c.significant = False
+                c.confidence = min(c.confidence, SCREENED_CONFIDENCE)
+            log.info("round %d %-19s gain %.4f (z %.1f, rel %.3f)%s %s", rnd, eff.name, c.gain, c.z, c.relative,
+                     "" if c.fitted else " [screened out]",
+                     _fmt({p.key: v.get(p.key, 0.0) for p in eff.params}))
             round_c.append(c)
             candidates[eff.name] = c
-        round_c.sort(key=lambda c: -c.gain)
+        # fitted candidates first (scored at the final level), then the screened-out ones
+        round_c.sort(key=lambda c: (not c.fitted, -c.gain))
         if rnd == 1:
             first_round = list(round_c)
         best = round_c[0]
@@ -406,12 +670,35 @@ def calibrate_fit(obj: Objective) -> FitResult:
             break
         selected.append(best)
         current, cur_eval = best.values, best.evaluation
-        remaining = [e for e in remaining if e.name != best.effect.name]
-        # only candidates that helped at all are worth another round
-        helped = {c.effect.name for c in round_c[1:] if c.gain > 0}
+        # only fitted candidates that helped at all are worth another round
+        helped = {c.effect.name for c in round_c[1:] if c.fitted and c.gain > 0}
         remaining = [e for e in remaining if e.name in helped]
+    if selected:
+        # step 5: polish the selected config (thresholds, the named effects and the
+        # configured ones, in a narrow range; additive ones on the final pixel sample); kept
+        # when its fit discrepancy (final level) is no worse
+        params = [THRESHOLD_SCALE] + [p for c in selected for p in c.effect.params] + present_params(search)
+        polished = refine(search, current, [p for p in params if not additive(p)], rounds=1,
+                          steps=cfg.refine_steps, factor=1.25)
+        polished = refine(fine, polished, [p for p in params if additive(p)], rounds=1,
+                          steps=cfg.refine_steps, factor=1.25)
+        if polished != current:
+            ev = final(polished)
+            log.info("polished %s: fit %.3f held-out %.3f (before %.3f, %.3f)", _fmt(polished), ev.fit_mean,
+                     ev.held_mean, cur_eval.fit_mean, cur_eval.held_mean)
+            if ev.fit_mean <= cur_eval.fit_mean:
+                current, cur_eval = polished, ev
+                for c in selected:           # the named effects report the polished values
+                    c.values = dict(polished)
+        tick("polish")
+    n = search.n_sims + (final.n_sims if final is not search else 0) + \
+        (fine.n_sims if fine is not search and fine is not final else 0)
+    info = {"search_pixels": search.ctx.n_pixels, "search_stride": search.ctx.stride,
+            "search_simulations": search.n_sims, "final_simulations": n - search.n_sims,
+            "kernel_runs": search.engine.n_kernel + (final.engine.n_kernel if final.engine is not search.engine else 0),
+            "count_slope": beta, "rounds": rnd}
     return FitResult(base=base, basic=basic, final=cur_eval, basic_values=values, final_values=current,
-                     selected=selected, candidates=candidates, first_round=first_round, n_sims=obj.n_sims)
+                     selected=selected, candidates=candidates, first_round=first_round, n_sims=n, search=info)
 
 
 def _fmt(values: dict) -> str:

@@ -29,7 +29,7 @@ from typing import Sequence
 
 import numpy as np
 
-from rdnet.calib.calibrate import calibrate
+from rdnet.calib.calibrate import calibrate, numba_threads
 from rdnet.calib.effects import EFFECTS, apply
 from rdnet.calib.fit import default_simulate
 from rdnet.calib.scene import SceneSpec, render
@@ -182,7 +182,8 @@ def run_proof(cases: Sequence[ProofCase] | None, out_dir: str | Path | None, rng
     cases = CASES if cases is None else cases
     results = []
     for case in cases:
-        rec, truth = make_recording(case, spec, sensor, rng, oversample, interpolate)
+        with numba_threads(cfg.threads):
+            rec, truth = make_recording(case, spec, sensor, rng, oversample, interpolate)
         log.info("proof case %s: truth %s", case.name, truth)
         cal = calibrate(rec, sensor, DegradeConfig(**case.base), cfg, seed=seed, interpolate=interpolate,
                         source=f"proof:{case.name}")

@@ -93,7 +93,9 @@ def markdown(cal: Calibration, figures: list[str]) -> str:
               f"{s['sampled_pixels']} sampled pixels (stride {s['pixel_stride']}), {s['real_events_compared']} "
               f"real events compared, {s['simulated_frames']} simulated frames, seeds {s['seeds']}, "
               f"{s['simulations']} simulations, {s['runtime_s']:.1f} s. Fit segments {s['fit_segments']}, "
-              f"held-out segments {s['heldout_segments']}.", ""]
+              f"held-out segments {s['heldout_segments']}."
+              + (f" The search ran on {s['search']['search_pixels']} pixels (stride {s['search']['search_stride']})"
+                 f" and the pixel circuit {s['search']['kernel_runs']} times." if s.get("search") else ""), ""]
     if figures:
         lines += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]
     return "\n".join(lines)

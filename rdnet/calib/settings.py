@@ -14,28 +14,42 @@ class CalibrateConfig:
     """Settings of the sim-to-real calibration (:mod:`rdnet.calib`).
 
     ``segments``: the recording is cut into this many equal time segments; even ones are
-    used to fit, odd ones are held out to score. ``seeds``: simulation seeds (common random
-    numbers: every candidate is simulated with the same seeds). ``pixel_stride``: simulate
-    every k-th row/column only (DVS pixels are independent, so this is an unbiased pixel
-    sample that divides the cost by k^2). ``time_bin_us``: bin of the rate-over-time
-    statistic. ``grid_px``: cell of the coarse rate map (simulated pixels).
-    ``intensity_bins``: log-intensity quantile bins. ``static_contrast``: a pixel whose
-    log-intensity range over the frames stays below this is *static*. ``significance``:
-    an effect is named missing only if its held-out gain exceeds this many standard
-    deviations of the discrepancy between seeds; ``min_relative_gain``: and this fraction
-    of the held-out discrepancy left after the basic refit. ``max_effects``: forward selection stops after this many.
-    ``search_points``: grid points of each 1-D parameter scan (then golden-section
-    refinement, ``refine_steps`` iterations). ``max_lag_us``: range of the latency
-    cross-correlation. ``max_sim_steps``: budget of simulated pixel-frames; the pixel
-    stride is raised automatically until the interpolated recording fits it (0 = off).
-    ``max_upsample``: cap of ``interpolate.max_upsample`` for the calibration (real frames
-    carry sensor noise that keeps the log-step bound from ever being met; 0 = no cap).
-    ``candidates``: the left-out effects to test (names of :data:`rdnet.calib.effects.EFFECTS`;
-    empty = all of them).
+    used to fit, odd ones are held out to score. ``seeds``: simulation seeds of the final
+    scoring (common random numbers: every candidate is simulated with the same seeds; their
+    spread is the noise scale of the significance test). ``search_seeds``: the first this
+    many of them are used while fitting. ``pixel_stride``: simulate every k-th row/column
+    only (DVS pixels are independent, so this is an unbiased pixel sample that divides the
+    cost by k^2). ``time_bin_us``: bin of the rate-over-time statistic. ``grid_px``: cell of
+    the coarse rate map (simulated pixels). ``intensity_bins``: log-intensity quantile bins.
+    ``static_contrast``: a pixel whose log-intensity range over the frames stays below this
+    is *static*. ``significance``: an effect is named missing only if its held-out gain
+    exceeds this many standard deviations of the discrepancy between seeds;
+    ``min_relative_gain``: and this fraction of the held-out discrepancy left after the
+    basic refit. ``max_effects``: forward selection stops after this many.
+    ``search_points``: grid points of the screen of an effect without a data-driven first
+    guess (log-spaced over its range; its weak end is not simulated); ``refine_steps``:
+    evaluations of each golden-section refinement. ``screen_gain``: an effect is fitted
+    only if its best screen point lowers the fit discrepancy by this fraction of the one
+    after the basic refit; ``max_fitted``: at most this many effects that act in the pixel
+    circuit (the best screened) are fitted per round (plausible additive effects, which
+    cost no circuit runs, always are). ``max_lag_us``: range of the latency
+    cross-correlation. ``max_sim_steps``: budget of simulated pixel-frames of the final
+    scoring; the pixel stride is raised automatically until the interpolated recording
+    fits it (counting every frame pair at ``max_upsample``; 0 = off).
+    ``search_max_sim_steps``: the same budget for the search (a coarser pixel sample of
+    the final one; 0 = the final sample). ``max_upsample``: cap of
+    ``interpolate.max_upsample`` for the calibration (real frames carry sensor noise that
+    keeps the log-step bound from ever being met; 0 = no cap). ``threads``: numba and OpenCV
+    threads while calibrating (0 = their defaults; the calibration runs hundreds of short
+    simulations and one optical flow per frame pair, which on 2 shared cores run fastest
+    single-threaded: a parallel region waits for its slowest thread). ``candidates``: the
+    left-out effects to test (names of :data:`rdnet.calib.effects.EFFECTS`; empty = all of
+    them).
     """
 
     segments: int = 6
     seeds: int = 3
+    search_seeds: int = 1
     pixel_stride: int = 1
     time_bin_us: int = 2000
     grid_px: int = 8
@@ -44,11 +58,15 @@ class CalibrateConfig:
     significance: float = 3.0
     min_relative_gain: float = 0.05
     max_effects: int = 3
-    search_points: int = 7
-    refine_steps: int = 5
+    search_points: int = 5
+    refine_steps: int = 4
+    screen_gain: float = 0.02
+    max_fitted: int = 2
     max_lag_us: int = 20000
     max_sim_steps: int = 25_000_000
+    search_max_sim_steps: int = 4_000_000
     max_upsample: int = 16
+    threads: int = 1
     candidates: Tuple[str, ...] = ()
 
     def __post_init__(self):
@@ -56,10 +74,13 @@ class CalibrateConfig:
             raise ConfigError("calibrate.segments", f"must be >= 2 (fit and held-out), got {self.segments}")
         if self.seeds < 2:
             raise ConfigError("calibrate.seeds", f"must be >= 2 (the seed spread is the noise scale), got {self.seeds}")
-        for key in ("pixel_stride", "time_bin_us", "grid_px", "intensity_bins", "search_points"):
+        if not 1 <= self.search_seeds <= self.seeds:
+            raise ConfigError("calibrate.search_seeds", f"must be in [1, seeds={self.seeds}], got {self.search_seeds}")
+        for key in ("pixel_stride", "time_bin_us", "grid_px", "intensity_bins", "search_points", "max_fitted"):
             positive(f"calibrate.{key}", getattr(self, key), allow_zero=False)
-        for key in ("static_contrast", "significance", "min_relative_gain", "max_effects",
-                    "refine_steps", "max_lag_us", "max_sim_steps", "max_upsample"):
+        for key in ("static_contrast", "significance", "min_relative_gain", "max_effects", "screen_gain",
+                    "refine_steps", "max_lag_us", "max_sim_steps", "search_max_sim_steps", "max_upsample",
+                    "threads"):
             positive(f"calibrate.{key}", getattr(self, key))
         object.__setattr__(self, "candidates", tuple(self.candidates))
         from rdnet.calib.effects import EFFECTS

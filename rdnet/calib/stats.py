@@ -43,8 +43,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
-from rdnet.calib.context import CalibContext, frame_index
+from rdnet.calib.context import CalibContext
 from rdnet.events.core import Events
 
 #: statistic name -> default weight in the discrepancy.
@@ -88,36 +89,106 @@ class Summary:
 def summarize(events: Events, ctx: CalibContext) -> Summary:
     """Per-segment raw counts of ``events`` (already on the context's pixel grid)."""
     a = events.array
-    t = a["t"]
-    inwin = (t >= ctx.t0) & (t < ctx.t1)
-    if not inwin.all():
-        a = a[inwin]
-        t = a["t"]
+    return summarize_arrays(a["t"], a["x"], a["y"], a["p"], ctx)
+
+
+def summarize_arrays(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray,
+                     ctx: CalibContext) -> Summary:
+    """:func:`summarize` of event columns in any order (one O(n + pixels) numba pass:
+    the per-pixel intervals are taken after grouping the events by pixel and sorting
+    each pixel's times, so the events need not be time-sorted)."""
     S, P, B = len(ctx.segments), ctx.n_pixels, len(ctx.intensity_edges) - 1
-    seg = np.searchsorted(ctx.segments[:, 1], t, side="right")
-    seg = np.minimum(seg, S - 1)
-    pixel = a["y"].astype(np.int64) * ctx.width + a["x"]
-    on = a["p"].astype(bool)
-    key = seg * P + pixel
-    pix = np.bincount(key, minlength=S * P).reshape(S, P)
-    pix_on = np.bincount(key[on], minlength=S * P).reshape(S, P)
-    fi = frame_index(ctx, t)
-    b = ctx.frame_bin.reshape(len(ctx.frame_t), -1)[fi, pixel].astype(np.int64)
-    kb = seg * B + b
-    ibin = np.bincount(kb, minlength=S * B).reshape(S, B)
-    ibin_on = np.bincount(kb[on], minlength=S * B).reshape(S, B)
-    # inter-event intervals per pixel (stable sort keeps time order within a pixel)
-    order = np.argsort(pixel, kind="stable")
-    ps, ts = pixel[order], t[order]
-    same = ps[1:] == ps[:-1]
-    dt = (ts[1:] - ts[:-1])[same]
-    iseg = seg[order][1:][same]
-    lb = np.searchsorted(IEI_EDGES, np.log10(np.maximum(dt, 1).astype(np.float64)), side="right")
+    K = len(ctx.time_edges) - 1
     nI = len(IEI_EDGES) + 1
-    iei = np.bincount(iseg * nI + lb, minlength=S * nI).reshape(S, nI)
-    kt = np.searchsorted(ctx.time_edges, t, side="right") - 1
-    rate_t = np.bincount(np.clip(kt, 0, len(ctx.time_edges) - 2), minlength=len(ctx.time_edges) - 1)
-    return Summary(pix, pix_on, ibin, ibin_on, iei, rate_t)
+    ft = ctx.frame_t
+    mids = (ft[:-1] + ft[1:]) // 2
+    pix, pix_on, ibin, ibin_on, iei, rate_t = _summarize_kernel(
+        np.ascontiguousarray(t, np.int64), np.ascontiguousarray(x), np.ascontiguousarray(y),
+        np.ascontiguousarray(p), int(ctx.width), int(ctx.t0), int(ctx.t1),
+        np.ascontiguousarray(ctx.segments[:, 1]), mids, ctx.frame_bin_by_pixel, np.int64(ctx.cfg.time_bin_us),
+        IEI_EDGES,
+        S, P, B, K, nI)
+    return Summary(pix.reshape(S, P), pix_on.reshape(S, P), ibin.reshape(S, B), ibin_on.reshape(S, B),
+                   iei.reshape(S, nI), rate_t)
+
+
+@njit(cache=True, inline="always")
+def _right(edges, v) -> int:
+    """np.searchsorted(edges, v, side='right') for one value."""
+    lo, hi = 0, edges.shape[0]
+    while lo < hi:
+        m = (lo + hi) >> 1
+        if edges[m] <= v:
+            lo = m + 1
+        else:
+            hi = m
+    return lo
+
+
+@njit(cache=True)
+def _summarize_kernel(t, x, y, p, width, t0, t1, seg_end, mids, frame_bin, tb, iei_edges,
+                      S, P, B, K, nI):
+    # pass 1 (input order): events per pixel; pass 2: each pixel's times and polarities in
+    # pixel order; pass 3 (pixel by pixel, so the per-pixel counts are written in order):
+    # sort each pixel's times, then every count
+    pix = np.zeros(S * P, np.int64)
+    pix_on = np.zeros(S * P, np.int64)
+    ibin = np.zeros(S * B, np.int64)
+    ibin_on = np.zeros(S * B, np.int64)
+    iei = np.zeros(S * nI, np.int64)
+    rate_t = np.zeros(K, np.int64)
+    n = t.shape[0]
+    start = np.zeros(P + 1, np.int32)
+    for i in range(n):
+        ti = t[i]
+        if ti >= t0 and ti < t1:
+            start[np.int64(y[i]) * width + np.int64(x[i]) + 1] += 1
+    for q in range(P):
+        start[q + 1] += start[q]
+    fill = start[:P].copy()
+    m = start[P]
+    tt = np.empty(m, np.int64)
+    pp = np.empty(m, np.uint8)
+    for i in range(n):
+        ti = t[i]
+        if ti >= t0 and ti < t1:
+            q = np.int64(y[i]) * width + np.int64(x[i])
+            j = fill[q]
+            tt[j] = ti
+            pp[j] = p[i]
+            fill[q] = j + 1
+    for q in range(P):
+        a, e = start[q], start[q + 1]
+        if e == a:
+            continue
+        for j in range(a + 1, e):        # insertion sort: each pixel's times are nearly sorted
+            v = tt[j]
+            w = pp[j]
+            k = j - 1
+            while k >= a and tt[k] > v:
+                tt[k + 1] = tt[k]
+                pp[k + 1] = pp[k]
+                k -= 1
+            tt[k + 1] = v
+            pp[k + 1] = w
+        for j in range(a, e):
+            ti = tt[j]
+            s = min(_right(seg_end, ti), S - 1)
+            on = pp[j] != 0
+            pix[s * P + q] += 1
+            b = np.int64(frame_bin[q, _right(mids, ti)])
+            ibin[s * B + b] += 1
+            if on:
+                pix_on[s * P + q] += 1
+                ibin_on[s * B + b] += 1
+            kb = min((ti - t0) // tb, K - 1)       # the bins are tb wide, the last takes the rest
+            rate_t[kb] += 1
+            if j > a:
+                dt = ti - tt[j - 1]
+                if dt < 1:
+                    dt = 1
+                iei[s * nI + _right(iei_edges, np.log10(np.float64(dt)))] += 1
+    return pix, pix_on, ibin, ibin_on, iei, rate_t
 
 
 def band_means(x: np.ndarray, bands) -> np.ndarray:

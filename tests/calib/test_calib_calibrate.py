@@ -82,3 +82,20 @@ def test_report_schema_and_files(hot_cal, tmp_path):
                                                 ("fit_before", "fit_after", "heldout_before", "heldout_after"))
     md = (tmp_path / "out" / "report.md").read_text()
     assert md.splitlines()[2].startswith("The simulator is missing hot pixels")
+
+
+def test_search_on_a_coarser_pixel_sample(hot_recording):
+    """Over the search budget the fits run on every 2nd row/column; the verdict, the additive
+    effect's fit and the report stay on the whole sample."""
+    rec, truth = hot_recording
+    cfg = dataclasses.replace(CFG, candidates=("threshold_mismatch", "hot_pixels"),
+                              search_max_sim_steps=150_000)
+    cal = calibrate(rec, SENSOR, DegradeConfig(**HOT.base), cfg, seed=0, interpolate=INTERP, source="hot.h5",
+                    progress=False)
+    s = cal.report["setup"]
+    assert s["pixel_stride"] == 1 and s["search"]["search_stride"] == 2
+    assert s["search"]["search_pixels"] == 24 * 24
+    m = case_metrics(HOT, cal.report, truth)
+    assert m["named"] == ["hot_pixels"] and m["param_max_rel_error"] <= 0.25, m
+    screened = [e for e in cal.report["effects"] if not e["fitted"]]
+    assert all(not e["missing"] and e["confidence"] < 0.5 for e in screened)

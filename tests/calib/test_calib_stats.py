@@ -179,3 +179,7 @@ def test_config_checks():
         CalibrateConfig(seeds=1)
     with pytest.raises(ConfigError, match="calibrate.candidates"):
         CalibrateConfig(candidates=("gremlins",))
+    with pytest.raises(ConfigError, match="calibrate.search_seeds"):
+        CalibrateConfig(seeds=3, search_seeds=4)
+    with pytest.raises(ConfigError, match="calibrate.max_fitted"):
+        CalibrateConfig(max_fitted=0)

@@ -1,0 +1,158 @@
+"""How the calibration simulates a parameter set: the project's pixel model
+(:class:`rdnet.sim.sensor.Sensor`) for what happens *inside* the pixel, composed with the
+additive noise and timestamp effects of :mod:`rdnet.sim.effects`, and summarised
+directly into the statistics of :mod:`rdnet.calib.stats`.
+
+The search evaluates hundreds of parameter sets on the same frames, and most of the
+vocabulary does not change what the pixel circuit emits: shot noise and hot pixels add
+events, jitter and latency move them. :class:`Engine` therefore splits a config in two:
+
+* the **kernel** part (thresholds, mismatch, ON/OFF ratio, bandwidth, refractory period,
+  readout period, leak): simulated by ``Sensor`` from log frames computed once per
+  context, and cached per (kernel config, seed) (a small LRU);
+* the **additive** part (shot noise, hot pixels, jitter, latency): drawn on top of the
+  cached kernel events with the simulator's own functions (:func:`effects.poisson_events`,
+  :func:`effects.hot_pixels`, :func:`effects.apply_timing`), exactly as
+  ``Sensor.step`` composes them for a single chunk.
+
+The composition gives the same events as :func:`rdnet.sim.pair.simulate` with one chunk
+for every deterministic config (tested), and the same distribution for random ones (the
+random numbers are drawn in another order: each component has its own stream derived
+from the seed, which also makes the draws common to candidates that share a component).
+"""
+from __future__ import annotations
+
+import dataclasses
+from collections import OrderedDict
+
+import numpy as np
+
+from rdnet.calib.context import CalibContext
+from rdnet.calib.stats import Summary, summarize_arrays
+from rdnet.events.core import Events
+from rdnet.sim import effects
+from rdnet.sim.sensor import Sensor, sort_events
+from rdnet.sim.settings import DegradeConfig, SensorConfig
+
+#: degrade keys that act on the events after the pixel circuit (composed by the engine)
+ADDITIVE_KEYS = ("shot_noise_hz", "shot_noise_bright_factor", "hot_pixel_fraction", "hot_pixel_hz",
+                 "jitter_us", "latency_us")
+#: stream ids of the per-component random generators (np.random.default_rng([seed, id]))
+_KERNEL, _SHOT, _HOT, _TIMING = 0, 1, 2, 3
+
+
+def _kernel_degrade(degrade: DegradeConfig) -> DegradeConfig:
+    off = {k: 0.0 for k in ADDITIVE_KEYS if k != "shot_noise_bright_factor"}
+    return dataclasses.replace(degrade, **off)
+
+
+def kernel_key(sensor: SensorConfig, degrade: DegradeConfig) -> tuple:
+    """What the pixel-circuit events of a config depend on (the cache key, seed aside)."""
+    d = _kernel_degrade(degrade)
+    return (round(sensor.threshold_on, 12), round(sensor.threshold_off, 12), round(sensor.log_eps, 12),
+            tuple(round(float(getattr(d, f.name)), 12) for f in dataclasses.fields(d)))
+
+
+class Engine:
+    """Simulations of one context's upsampled frames (see the module docstring).
+
+    ``cache_size``: kernel event sets kept (each holds one simulation's events)."""
+
+    def __init__(self, ctx: CalibContext, cache_size: int = 24):
+        self.ctx = ctx
+        self.lin = np.ascontiguousarray(ctx.sim_images, dtype=np.float32)
+        self.t = np.ascontiguousarray(ctx.sim_t, dtype=np.int64)
+        self._log = None
+        self._shot_int = None
+        self._cache: OrderedDict = OrderedDict()
+        self.cache_size = int(cache_size)
+        self.n_kernel = 0          # Sensor runs
+        self.n_composed = 0        # simulations (kernel cached or not)
+
+    # --- per-context precomputation -------------------------------------------------------
+    def log_frames(self, log_eps: float) -> np.ndarray:
+        """float32 log(I + eps) of the upsampled frames, as the sensor computes it."""
+        if self._log is None or self._log[0] != log_eps:
+            lf = np.add(self.lin, np.float32(log_eps))
+            np.log(lf, out=lf)
+            self._log = (log_eps, lf)
+        return self._log[1]
+
+    def shot_integral(self) -> np.ndarray:
+        """(H, W) sum over the steps of clip(I_k, 0, 1) dt_k (us): the intensity-dependent
+        part of the shot-noise hazard (``Sensor``'s ``_linear_terms``)."""
+        if self._shot_int is None:
+            dt = np.diff(self.t).astype(np.float64)
+            acc = np.zeros(self.lin.shape[1:])
+            for k in range(1, self.lin.shape[0]):
+                acc += np.clip(self.lin[k], 0.0, 1.0) * dt[k - 1]
+            self._shot_int = acc
+        return self._shot_int
+
+    # --- simulation ---------------------------------------------------------------------------
+    def kernel_events(self, sensor: SensorConfig, degrade: DegradeConfig, seed: int) -> np.ndarray:
+        """Time-sorted events of the pixel circuit alone (additive effects off)."""
+        kd = _kernel_degrade(degrade)
+        rnd = effects.needs_rng(kd)
+        key = (kernel_key(sensor, degrade), seed if rnd else None)
+        hit = self._cache.get(key)
+        if hit is not None:
+            self._cache.move_to_end(key)
+            return hit
+        rng = np.random.default_rng([seed, _KERNEL]) if rnd else None
+        h, w = self.lin.shape[1:]
+        s = Sensor(w, h, sensor, kd, rng)
+        s.step(self.lin[:1], self.t[:1])          # the first frame sets the state (linear, as simulate)
+        if kd.cutoff_hz > 0:                       # the low-pass needs the linear intensity
+            ev = s.step(self.lin[1:], self.t[1:])
+        else:
+            ev = s.step(self.log_frames(sensor.log_eps)[1:], self.t[1:], log=True)
+        arr = ev.array
+        rest = s.flush().array
+        if rest.size:
+            arr = np.concatenate([arr, rest])
+        self.n_kernel += 1
+        self._cache[key] = arr
+        if len(self._cache) > self.cache_size:
+            self._cache.popitem(last=False)
+        return arr
+
+    def compose(self, sensor: SensorConfig, degrade: DegradeConfig, seed: int) -> np.ndarray:
+        """All events of ``(sensor, degrade)`` with ``seed`` (not time-sorted when additive
+        effects are on)."""
+        self.n_composed += 1
+        arr = self.kernel_events(sensor, degrade, seed)
+        d = degrade
+        t0, t1 = int(self.t[0]), int(self.t[-1])
+        h, w = self.lin.shape[1:]
+        parts = [arr]
+        if d.shot_noise_hz > 0:
+            a, b = effects.shot_rate_coefs(d)
+            lam = a * float(t1 - t0) + b * self.shot_integral()
+            parts.append(effects.poisson_events(lam.ravel(), None, t0, t1, w, np.random.default_rng([seed, _SHOT])))
+        if d.hot_pixel_fraction > 0 and d.hot_pixel_hz > 0:
+            rng = np.random.default_rng([seed, _HOT])
+            idx, pol = effects.hot_pixels(h, w, d, rng)
+            if idx.size:
+                lam = np.full(idx.size, d.hot_pixel_hz * (t1 - t0) * 1e-6)
+                parts.append(effects.poisson_events(lam, idx, t0, t1, w, rng, pol))
+        timing = d.jitter_us > 0 or d.latency_us > 0
+        if len(parts) == 1 and not timing:
+            return arr
+        out = np.concatenate(parts) if len(parts) > 1 else arr.copy()
+        if timing:
+            effects.apply_timing(out, d, np.random.default_rng([seed, _TIMING]) if d.jitter_us > 0 else None, t0)
+        return out
+
+    def summary(self, sensor: SensorConfig, degrade: DegradeConfig, seed: int) -> Summary:
+        arr = self.compose(sensor, degrade, seed)
+        return summarize_arrays(arr["t"], arr["x"], arr["y"], arr["p"], self.ctx)
+
+    def events(self, sensor: SensorConfig, degrade: DegradeConfig, seed: int) -> Events:
+        """Time-sorted :class:`Events` (for the report's consistency check)."""
+        arr = self.compose(sensor, degrade, seed)
+        h, w = self.lin.shape[1:]
+        return Events(sort_events(arr), w, h, validate=False)
+
+
+__all__ = ["ADDITIVE_KEYS", "Engine", "kernel_key"]
