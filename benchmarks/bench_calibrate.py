@@ -51,7 +51,7 @@ def _row(name: str, cal, n_events: int, wall: float, cpu: float, load: tuple) ->
             "sampled_pixels": r["setup"]["sampled_pixels"], "pixel_stride": r["setup"]["pixel_stride"],
             "search_pixels": r["setup"]["search"]["search_pixels"],
             "simulated_frames": r["setup"]["simulated_frames"], "simulations": r["setup"]["simulations"],
-            "pixel_circuit_runs": r["setup"]["search"]["kernel_runs"],
+            "pixel_circuit_runs": r["setup"].get("pixel_circuit_runs", r["setup"]["search"]["kernel_runs"]),
             "wall_s": wall, "cpu_s": cpu, "load_average_1min_before_after": list(load),
             "s_per_million_events": per_m, "cpu_s_per_million_events": cpu / max(n_events, 1) * 1e6,
             "goal_s_per_million_events": 60.0, "meets_goal": per_m <= 60.0,
@@ -109,6 +109,9 @@ def main() -> None:
                                                   "platform": platform.platform()},
            "calibrate_config": to_dict(cfg), "results": rows}
     args.results.parent.mkdir(parents=True, exist_ok=True)
+    if args.results.exists():       # keep the hand-recorded history (before_redesign, ...)
+        old = json.loads(args.results.read_text())
+        out.update({k: v for k, v in old.items() if k not in out})
     write_json(args.results, out)
     print(json.dumps(rows, indent=2))
 

@@ -10,6 +10,7 @@ Use::
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from contextlib import contextmanager
@@ -21,13 +22,12 @@ from tqdm.auto import tqdm
 from rdnet.calib.consistency import consistency
 from rdnet.calib.context import CalibContext, build_context, subsample_context
 from rdnet.calib.effects import absent_effects, apply
-from rdnet.calib.fit import FitResult, Objective, SimulateFn, calibrate_fit
+from rdnet.calib.fit import FitResult, Objective, SimulateFn, calibrate_fit, fit_basic, screen_gains
 from rdnet.calib.locate import residuals, where
 from rdnet.calib.settings import CalibrateConfig
 from rdnet.calib.stats import STATISTICS
 from rdnet.config import to_dict
 from rdnet.events.recording import Recording
-from rdnet.sim.effects import needs_rng
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
 log = logging.getLogger(__name__)
@@ -107,31 +107,57 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
                seed: int, interpolate, source: str, simulate_fn: SimulateFn | None,
                progress: bool) -> Calibration:
     t_start = time.perf_counter()
-    ctx = build_context(rec, cfg, sensor.log_eps, interpolate=interpolate, source=source)
-    k = 1
-    while cfg.search_max_sim_steps and k < 64 and \
-            len(ctx.sim_t) * len(range(0, ctx.height, k)) * len(range(0, ctx.width, k)) > cfg.search_max_sim_steps:
-        k += 1
-    sctx = subsample_context(ctx, k)
-    log.info("calibrating %s: %d sampled pixels (stride %d; search: %d, stride %d), %d real events, "
-             "%d simulated frames", source, ctx.n_pixels, ctx.stride, sctx.n_pixels, sctx.stride,
-             len(ctx.real), len(ctx.sim_t))
     seeds = [int(seed) * 1000 + j for j in range(cfg.seeds)]
-    obj = Objective(ctx, sensor, degrade, seeds, simulate_fn, name="final")
-    fine = obj
-    if cfg.search_seeds < cfg.seeds:
-        # the final pixel sample with the search seeds: shares the engine and simulations
-        fine = Objective(ctx, sensor, degrade, seeds[:cfg.search_seeds], simulate_fn, engine=obj.engine,
-                         name="fine")
-        fine._summaries = obj._summaries
-    search = fine if sctx is ctx else Objective(sctx, sensor, degrade, seeds[:cfg.search_seeds], simulate_fn,
-                                                name="search")
     bar = tqdm(desc="calibrate", unit="step", disable=None if progress else True)
+
+    def tick(msg: str) -> None:
+        bar.set_postfix_str(msg)
+        bar.update(1)
+
     try:
-        fit = calibrate_fit(search, obj, fine, progress=lambda msg: (bar.set_postfix_str(msg), bar.update(1)))
+        trials = []
+        interps = interpolation_configs(cfg, interpolate)
+        for icfg in interps:
+            ctx = build_context(rec, cfg, sensor.log_eps, interpolate=icfg, source=source)
+            obj, fine, search = _objectives(ctx, sensor, degrade, seeds, simulate_fn)
+            values, beta = fit_basic(search, fine)
+            ev = search(values)          # memoised by the refit: the comparison costs no simulation
+            method = "given" if icfg is None else icfg.method
+            gains = screen_gains(search, fine, values, beta) if len(interps) > 1 else {}
+            best = max(gains, key=gains.get, default=None)
+            reach = ev.fit_mean * (1.0 - max(0.0, gains.get(best, 0.0)))
+            log.info("frame interpolation %s: %d simulated frames, basic refit %s: fit %.3f held-out %.3f; "
+                     "best screened effect %s: fit -> %.3f", method, len(ctx.sim_t), values, ev.fit_mean,
+                     ev.held_mean, best, reach)
+            trials.append((method, ctx, obj, fine, search, values, beta, ev, reach, best, gains))
+            tick(f"basic refit ({method})")
+        chosen = min(trials, key=lambda tr: tr[8])
+        method, ctx, obj, fine, search = chosen[:5]
+        log.info("calibrating %s: %d sampled pixels (stride %d; search: %d, stride %d), %d real events, "
+                 "%d simulated frames (%s interpolation)", source, ctx.n_pixels, ctx.stride, search.ctx.n_pixels,
+                 search.ctx.stride, len(ctx.real), len(ctx.sim_t), method)
+        fit = calibrate_fit(search, obj, fine, progress=tick, basic=(chosen[5], chosen[6]))
     finally:
         bar.close()
-
+    frame_interp = {
+        "chosen": method,
+        "rule": ("nuisance choice before any effect is named: the frames are upsampled with each "
+                 "method, the configured parameters re-fitted and every left-out effect screened on "
+                 "each; kept: the lowest reachable fit-segment discrepancy (basic refit, lowered by the "
+                 "share its best screened effect removes), so an interpolation cannot win by mimicking a "
+                 "missing effect; effects are tested on the kept one only"),
+        "level": "search pixel sample, search seeds",
+        "candidates": {tr[0]: {"fit_after_basic_refit": tr[7].fit_mean,
+                               "fit_reachable": tr[8], "best_screened_effect": tr[9],
+                               "heldout_after_basic_refit": tr[7].held_mean,
+                               "basic_refit": {k: float(v) for k, v in tr[5].items()},
+                               "simulated_frames": int(len(tr[1].sim_t))} for tr in trials},
+    }
+    # the losing interpolations' simulations count too; their frames and caches are dropped
+    lost = [o for tr in trials if tr is not chosen for o in {id(o): o for o in tr[2:5]}.values()]
+    lost_sims = sum(o.n_sims for o in lost)
+    lost_kernel = sum(e.n_kernel for e in {id(o.engine): o.engine for o in lost}.values())
+    del trials, chosen, lost
     base_stats = obj.stats_all({}, seeds[0])
     basic_stats = obj.stats_all(fit.basic_values, seeds[0])
     fitted_stats = obj.stats_all(fit.final_values, seeds[0])
@@ -170,9 +196,11 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
     }
     floor = noise_floor(obj, fit.final_values)
     runtime = time.perf_counter() - t_start
-    n_sims = sum(o.n_sims for o in {id(o): o for o in (obj, fine, search)}.values())
+    kept = {id(o): o for o in (obj, fine, search)}.values()
+    n_kernel = lost_kernel + sum(e.n_kernel for e in {id(o.engine): o.engine for o in kept}.values())
+    n_sims = lost_sims + sum(o.n_sims for o in kept)
     log.info("calibration of %s: %.1f s, %d simulations (%d pixel-circuit runs)", source, runtime,
-             n_sims, fit.search.get("kernel_runs", 0))
+             n_sims, n_kernel)
     report = {
         "recording": source,
         "base_config": _configs_dict(sensor, degrade),
@@ -195,6 +223,7 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
             "terms_heldout_after": {k: float(v.mean()) for k, v in fit.final.held_terms.items()},
         },
         "basic_refit": {k: float(v) for k, v in fit.basic_values.items()},
+        "frame_interpolation": frame_interp,
         "mismatch": {"base": residuals(base_stats, obj.real_all, ctx),
                      "after_basic_refit": res_basic,
                      "fitted": residuals(fitted_stats, obj.real_all, ctx)},
@@ -203,21 +232,55 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
                   "segments_us": ctx.segments.tolist(), "fit_segments": list(ctx.fit),
                   "heldout_segments": list(ctx.held), "real_events_compared": len(real_ev),
                   "simulated_frames": int(len(ctx.sim_t)),
-                  "simulations": n_sims,
+                  "simulations": n_sims, "pixel_circuit_runs": n_kernel,
                   "search": fit.search, "runtime_s": runtime, "calibrate": to_dict(cfg)},
     }
     return Calibration(ctx=ctx, fit=fit, report=report, real_stats=obj.real_all, base_stats=base_stats,
                        basic_stats=basic_stats, fitted_stats=fitted_stats, runtime_s=runtime)
 
 
+def interpolation_configs(cfg: CalibrateConfig, interpolate) -> list:
+    """The ``InterpolateConfig`` of every method of ``cfg.interpolation`` (the rest of
+    ``interpolate``'s settings kept); ``[interpolate]`` when the list is empty."""
+    if not cfg.interpolation:
+        return [interpolate]
+    from rdnet.sim.interpolate import InterpolateConfig
+    base = InterpolateConfig() if interpolate is None else interpolate
+    return [dataclasses.replace(base, method=m) for m in cfg.interpolation]
+
+
+def _objectives(ctx: CalibContext, sensor: SensorConfig, degrade: DegradeConfig, seeds: list[int],
+                simulate_fn: SimulateFn | None) -> tuple[Objective, Objective, Objective]:
+    """The final objective (every seed, final pixel sample), the fine one (search seeds,
+    final sample; shares the engine) and the search one (search seeds, the coarser pixel
+    sample that fits ``cfg.search_max_sim_steps``)."""
+    cfg = ctx.cfg
+    k = 1
+    while cfg.search_max_sim_steps and k < 64 and \
+            len(ctx.sim_t) * len(range(0, ctx.height, k)) * len(range(0, ctx.width, k)) > cfg.search_max_sim_steps:
+        k += 1
+    sctx = subsample_context(ctx, k)
+    obj = Objective(ctx, sensor, degrade, seeds, simulate_fn, name="final")
+    fine = obj
+    if cfg.search_seeds < cfg.seeds:
+        # the final pixel sample with the search seeds: shares the engine and simulations
+        fine = Objective(ctx, sensor, degrade, seeds[:cfg.search_seeds], simulate_fn, engine=obj.engine,
+                         name="fine")
+        fine._summaries = obj._summaries
+    search = fine if sctx is ctx else Objective(sctx, sensor, degrade, seeds[:cfg.search_seeds], simulate_fn,
+                                                name="search")
+    return obj, fine, search
+
+
 def noise_floor(obj: Objective, values: dict) -> float:
     """Held-out discrepancy between simulations of the same config with different seeds
     (mean over seed pairs): what a perfect simulator would still score against a
-    recording, from the randomness of the events alone. 0 for a deterministic config."""
+    recording, from the randomness of the events alone (the random initial reference
+    included). 0 when the events do not depend on the seed."""
     from itertools import combinations
 
     from rdnet.calib import stats as st
-    if not needs_rng(obj.configs(values)[1]):
+    if len(obj.seeds_for(values)) < 2:
         return 0.0
     held = [st.aggregate(obj.summary(values, s), obj.ctx, obj.ctx.held) for s in obj.seeds]
     return float(np.mean([st.discrepancy(a, b, obj.ctx)[0] for a, b in combinations(held, 2)]))

@@ -16,7 +16,7 @@ events, jitter and latency move them. :class:`Engine` therefore splits a config 
   ``Sensor.step`` composes them for a single chunk.
 
 The composition gives the same events as :func:`rdnet.sim.pair.simulate` with one chunk
-for every deterministic config (tested), and the same distribution for random ones (the
+for every deterministic config when ``random_reference`` is off (tested), and the same distribution for random ones (the
 random numbers are drawn in another order: each component has its own stream derived
 from the seed, which also makes the draws common to candidates that share a component).
 """
@@ -38,7 +38,33 @@ from rdnet.sim.settings import DegradeConfig, SensorConfig
 ADDITIVE_KEYS = ("shot_noise_hz", "shot_noise_bright_factor", "hot_pixel_fraction", "hot_pixel_hz",
                  "jitter_us", "latency_us")
 #: stream ids of the per-component random generators (np.random.default_rng([seed, id]))
-_KERNEL, _SHOT, _HOT, _TIMING = 0, 1, 2, 3
+_KERNEL, _SHOT, _HOT, _TIMING, _REFERENCE = 0, 1, 2, 3, 4
+
+
+def randomize_reference(sensor: Sensor, degrade: DegradeConfig, u: np.ndarray) -> None:
+    """Move the reference of every pixel of ``sensor`` (after its first frame set the state)
+    to ``L0 + theta_off - u (theta_on + theta_off)``, ``u`` (H, W) in [0, 1): the log
+    intensity then sits uniformly between the OFF and the ON threshold, the stationary
+    state of a pixel that has seen changes before the recording starts (the simulator's
+    own start, ``ref = L0``, puts every pixel exactly between them). A config with a leak
+    keeps the sensor's own random leak phase."""
+    if degrade.leak_hz > 0:
+        return
+    sensor.ref[...] = sensor.s_prev + sensor.thr_off - u * (sensor.thr_on + sensor.thr_off)
+
+
+def simulate_random_start(images: np.ndarray, t_us: np.ndarray, sensor: SensorConfig, degrade: DegradeConfig,
+                          rng: np.random.Generator | None, ref_rng: np.random.Generator) -> Events:
+    """:func:`rdnet.sim.pair.simulate` of (N, H, W) linear frames (already upsampled) with
+    every pixel's reference started at a random point between its thresholds
+    (:func:`randomize_reference`, ``u`` drawn from ``ref_rng``): a recording's events, whose
+    pixels were in an unknown state when it started."""
+    n, h, w = images.shape
+    s = Sensor(w, h, sensor, degrade, rng)
+    s.step(images[:1], t_us[:1])
+    randomize_reference(s, degrade, ref_rng.random((h, w)))
+    parts = [s.step(images[1:], t_us[1:]).array, s.flush().array]
+    return Events(sort_events(np.concatenate(parts)), w, h, validate=False)
 
 
 def _kernel_degrade(degrade: DegradeConfig) -> DegradeConfig:
@@ -56,10 +82,15 @@ def kernel_key(sensor: SensorConfig, degrade: DegradeConfig) -> tuple:
 class Engine:
     """Simulations of one context's upsampled frames (see the module docstring).
 
-    ``cache_size``: kernel event sets kept (each holds one simulation's events)."""
+    ``cache_size``: kernel event sets kept (each holds one simulation's events).
+    ``random_reference``: start every pixel's reference at a random point between its
+    thresholds, drawn per seed (default ``ctx.cfg.random_reference``; see
+    :meth:`kernel_events`)."""
 
-    def __init__(self, ctx: CalibContext, cache_size: int = 24):
+    def __init__(self, ctx: CalibContext, cache_size: int = 24, random_reference: bool | None = None):
         self.ctx = ctx
+        self.random_reference = bool(ctx.cfg.random_reference if random_reference is None else random_reference)
+        self._ref_u = {}
         self.lin = np.ascontiguousarray(ctx.sim_images, dtype=np.float32)
         self.t = np.ascontiguousarray(ctx.sim_t, dtype=np.int64)
         self._log = None
@@ -90,10 +121,26 @@ class Engine:
         return self._shot_int
 
     # --- simulation ---------------------------------------------------------------------------
+    def reference_phase(self, seed: int) -> np.ndarray:
+        """(H, W) uniform [0, 1) draws of ``seed``'s initial reference (own stream, common
+        to every candidate simulated with that seed)."""
+        u = self._ref_u.get(seed)
+        if u is None:
+            h, w = self.lin.shape[1:]
+            u = self._ref_u[seed] = np.random.default_rng([seed, _REFERENCE]).random((h, w))
+        return u
+
+    def randomizes(self, degrade: DegradeConfig) -> bool:
+        """Whether the events of ``degrade`` depend on the seed."""
+        return self.random_reference or effects.needs_rng(degrade)
+
     def kernel_events(self, sensor: SensorConfig, degrade: DegradeConfig, seed: int) -> np.ndarray:
-        """Time-sorted events of the pixel circuit alone (additive effects off)."""
+        """Time-sorted events of the pixel circuit alone (additive effects off). With
+        ``random_reference`` every pixel's reference starts at a random point between its
+        thresholds (:func:`randomize_reference`, u ~ U[0, 1) per pixel and seed)."""
         kd = _kernel_degrade(degrade)
-        rnd = effects.needs_rng(kd)
+        rand_ref = self.random_reference and kd.leak_hz <= 0
+        rnd = effects.needs_rng(kd) or rand_ref
         key = (kernel_key(sensor, degrade), seed if rnd else None)
         hit = self._cache.get(key)
         if hit is not None:
@@ -103,6 +150,8 @@ class Engine:
         h, w = self.lin.shape[1:]
         s = Sensor(w, h, sensor, kd, rng)
         s.step(self.lin[:1], self.t[:1])          # the first frame sets the state (linear, as simulate)
+        if rand_ref:
+            randomize_reference(s, kd, self.reference_phase(seed))
         if kd.cutoff_hz > 0:                       # the low-pass needs the linear intensity
             ev = s.step(self.lin[1:], self.t[1:])
         else:
@@ -155,4 +204,4 @@ class Engine:
         return Events(sort_events(arr), w, h, validate=False)
 
 
-__all__ = ["ADDITIVE_KEYS", "Engine", "kernel_key"]
+__all__ = ["ADDITIVE_KEYS", "Engine", "kernel_key", "randomize_reference", "simulate_random_start"]

@@ -138,8 +138,11 @@ class Objective:
         return apply(self.sensor, self.degrade, values)
 
     def seeds_for(self, values: dict) -> list[int]:
-        """All seeds, or the first when the config draws no random numbers."""
-        return self.seeds if needs_rng(self.configs(values)[1]) else self.seeds[:1]
+        """All seeds, or the first when the events do not depend on the seed (a config
+        that draws no random numbers, simulated without a random initial reference)."""
+        d = self.configs(values)[1]
+        rnd = needs_rng(d) if self.simulate_fn is not None else self.engine.randomizes(d)
+        return self.seeds if rnd else self.seeds[:1]
 
     def summary(self, values: dict, seed: int) -> st.Summary:
         key = (_key(values), seed)
@@ -460,6 +463,24 @@ def screen(obj: Objective, values: dict, effect: Effect, points: int, beta: floa
     return evs, grid, keep
 
 
+def screen_gains(search: Objective, fine: Objective, values: dict, beta: float) -> dict:
+    """Round-1 screen of every candidate effect (``cfg.candidates`` or all absent ones) on
+    top of ``values``: effect name -> the fraction of the fit discrepancy its best screen
+    point removes (each on its own level: additive effects on ``fine``, the others on
+    ``search``). The evaluations are memoised, so the forward selection's first round
+    reuses them."""
+    cfg = search.ctx.cfg
+    out = {}
+    for eff in absent_effects(search.degrade):
+        if cfg.candidates and eff.name not in cfg.candidates:
+            continue
+        obj = fine if all(additive(p) for p in eff.params) else search
+        evs, _, _ = screen(obj, values, eff, cfg.search_points, beta)
+        ref = obj(values).fit_mean
+        out[eff.name] = (ref - min(e.fit_mean for e in evs)) / max(ref, 1e-12)
+    return out
+
+
 def rescreen(obj: Objective, values: dict, effect: Effect, previous: dict, beta: float) -> list[Evaluation]:
     """Step 2 in a later round: the effect at its previous fit, on top of ``values``."""
     f = Compensated(obj, beta) if effect.changes_count else obj
@@ -522,7 +543,8 @@ class Candidate:
 
 def _gain(before: Evaluation, after: Evaluation) -> tuple[float, float]:
     """Mean held-out gain and the seed spread of the held-out discrepancy (floored at
-    SPREAD_FLOOR of it, since a config without random effects has no seed spread)."""
+    SPREAD_FLOOR of it, for events that do not depend on the seed: a config without random
+    effects simulated with ``calibrate.random_reference`` off)."""
     gain = float((before.held - after.held).mean())
     n = min(before.held.size, after.held.size)
     seed_std = math.sqrt(0.5 * (before.held.var(ddof=1) + after.held.var(ddof=1))) if n > 1 else 0.0
@@ -584,11 +606,12 @@ class FitResult:
 
 
 def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objective | None = None,
-                  progress=None) -> FitResult:
+                  progress=None, basic: tuple[dict, float] | None = None) -> FitResult:
     """Steps 1-5: basic refit, screen, fits, forward selection, polish. ``search`` fits the
     thresholds and the pixel-circuit effects, ``fine`` (the final pixel sample with the
     search seeds; default ``search``) the additive effects and the polish, ``final``
-    (default ``search``) scores. ``progress``: optional callable(str) per finished step."""
+    (default ``search``) scores. ``progress``: optional callable(str) per finished step.
+    ``basic``: the result of :func:`fit_basic` when already run (values, count slope)."""
     final = final or search
     fine = fine or search
     cfg = search.ctx.cfg
@@ -605,7 +628,7 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
 
     base = final({})
     log.info("base: fit %.3f held-out %.3f", base.fit_mean, base.held_mean)
-    values, beta = fit_basic(search, fine)
+    values, beta = fit_basic(search, fine) if basic is None else basic
     basic = final(values)
     tick("basic refit")
     log.info("basic refit %s: fit %.3f held-out %.3f (count slope %.2f)", _fmt(values), basic.fit_mean,

@@ -11,6 +11,8 @@ By default (``oversample=1``) the true events are simulated from the recorded fr
 upsampled exactly as the calibration will upsample them, so the concealed effect is the
 only difference; ``oversample > 1`` simulates the truth from frames rendered that many
 times denser, which adds the calibration's own interpolation error to what it must explain.
+Every true simulation starts each pixel at a random point between its thresholds (the
+unknown state at the start of a real recording; :func:`rdnet.calib.engine.simulate_random_start`).
 
 :func:`run_proof` runs :func:`rdnet.calib.calibrate.calibrate` blind on every case and
 returns per-case metrics: the named effects, the rank of the true effect among the
@@ -31,6 +33,7 @@ import numpy as np
 
 from rdnet.calib.calibrate import calibrate, numba_threads
 from rdnet.calib.effects import EFFECTS, apply
+from rdnet.calib.engine import simulate_random_start
 from rdnet.calib.fit import default_simulate
 from rdnet.calib.scene import SceneSpec, render
 from rdnet.calib.settings import CalibrateConfig
@@ -74,8 +77,18 @@ CASES: tuple[ProofCase, ...] = (
 )
 
 
+def _truth_events(frames, sensor, degrade, seed):
+    """The "real" events: the simulator with every pixel started at a random point between
+    its thresholds (a recording starts in an unknown pixel state), the same draws for every
+    config of one case (``seed``)."""
+    if frames.images.ndim != 3:
+        return default_simulate(frames.images, frames.t_us, sensor, degrade, np.random.default_rng(seed))
+    return simulate_random_start(frames.images, frames.t_us, sensor, degrade, np.random.default_rng(seed),
+                                 np.random.default_rng([seed, 7]))
+
+
 def _count(frames, sensor, degrade, seed) -> int:
-    return len(default_simulate(frames.images, frames.t_us, sensor, degrade, np.random.default_rng(seed)))
+    return len(_truth_events(frames, sensor, degrade, seed))
 
 
 def make_recording(case: ProofCase, spec: SceneSpec, sensor: SensorConfig, rng: np.random.Generator,
@@ -126,7 +139,7 @@ def make_recording(case: ProofCase, spec: SceneSpec, sensor: SensorConfig, rng: 
                 lo = mid
         values[key] = math.exp(0.5 * (lo + hi))
     s, d = apply(sensor, DegradeConfig(), values)
-    events = default_simulate(fine.images, fine.t_us, s, d, np.random.default_rng(seed))
+    events = _truth_events(fine, s, d, seed)
     rec = Recording(spec.width, spec.height, events=events, frames=frames, sensor="proof scene")
     truth = {"degrade": {k: float(getattr(d, k)) for k in d.active()},
              "threshold_scale": float(values["threshold_scale"]), "base_count": n_base,

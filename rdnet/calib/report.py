@@ -67,6 +67,13 @@ def markdown(cal: Calibration, figures: list[str]) -> str:
         lines.append(f"- **{e['name']}**: {e['evidence']}")
     lines += ["", "## Basic refit (configured parameters)", "",
               ", ".join(f"{k} = {v:.4g}" for k, v in r["basic_refit"].items()) or "(nothing)", ""]
+    fi = r.get("frame_interpolation")
+    if fi and len(fi["candidates"]) > 1:
+        lines += [f"Frame interpolation (nuisance choice, lowest reachable fit discrepancy): "
+                  f"**{fi['chosen']}**; " + ", ".join(
+                      f"{m} fit {c['fit_after_basic_refit']:.3f} after the basic refit, {c['fit_reachable']:.3f} "
+                      f"with {c['best_screened_effect']} / held-out {c['heldout_after_basic_refit']:.3f} "
+                      f"({c['simulated_frames']} frames)" for m, c in fi["candidates"].items()), ""]
     lines += ["## Where the base simulation differs", "", "| statistic | held-out before | after |", "|---|---|---|"]
     for k, v in d["terms_heldout_before"].items():
         lines.append(f"| {k} | {v:.3f} | {d['terms_heldout_after'][k]:.3f} |")

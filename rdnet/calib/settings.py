@@ -44,7 +44,16 @@ class CalibrateConfig:
     simulations and one optical flow per frame pair, which on 2 shared cores run fastest
     single-threaded: a parallel region waits for its slowest thread). ``candidates``: the
     left-out effects to test (names of :data:`rdnet.calib.effects.EFFECTS`; empty = all of
-    them).
+    them). ``interpolation``: frame-interpolation methods (``interpolate.method``: flow,
+    linear) tried as a nuisance choice in the basic refit: the recording is upsampled with
+    each, the configured parameters are re-fitted and the left-out effects screened on each,
+    and the one with the lowest reachable fit-segment discrepancy (the basic refit's, lowered
+    by the share its best screened effect removes) is kept for everything after (reported
+    as ``frame_interpolation``; empty = the ``interpolate`` config as given).
+    ``random_reference``: each simulation seed starts every pixel's reference at a uniform
+    random point between its OFF and ON thresholds (the unknown state at recording start)
+    instead of at the first frame, so even a deterministic pixel model has an honest seed
+    spread; off = the simulator's own start (seed-independent for deterministic configs).
     """
 
     segments: int = 6
@@ -68,6 +77,8 @@ class CalibrateConfig:
     max_upsample: int = 16
     threads: int = 1
     candidates: Tuple[str, ...] = ()
+    interpolation: Tuple[str, ...] = ("flow", "linear")
+    random_reference: bool = True
 
     def __post_init__(self):
         if self.segments < 2:
@@ -83,6 +94,12 @@ class CalibrateConfig:
                     "threads"):
             positive(f"calibrate.{key}", getattr(self, key))
         object.__setattr__(self, "candidates", tuple(self.candidates))
+        object.__setattr__(self, "interpolation", tuple(self.interpolation))
+        for m in self.interpolation:
+            if m not in ("flow", "linear", "none"):
+                raise ConfigError("calibrate.interpolation", f"unknown method {m!r}; known: flow, linear, none")
+        if len(set(self.interpolation)) != len(self.interpolation):
+            raise ConfigError("calibrate.interpolation", f"duplicate method in {list(self.interpolation)}")
         from rdnet.calib.effects import EFFECTS
         for name in self.candidates:
             if name not in EFFECTS:

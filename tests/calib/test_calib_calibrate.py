@@ -82,6 +82,12 @@ def test_report_schema_and_files(hot_cal, tmp_path):
                                                 ("fit_before", "fit_after", "heldout_before", "heldout_after"))
     md = (tmp_path / "out" / "report.md").read_text()
     assert md.splitlines()[2].startswith("The simulator is missing hot pixels")
+    # the frame interpolation is a nuisance choice: the recording's events were simulated
+    # from linearly blended frames, and that is the method the basic refit keeps
+    fi = r["frame_interpolation"]
+    assert set(fi["candidates"]) == {"flow", "linear"} and fi["chosen"] == "linear"
+    assert all(c["fit_reachable"] <= c["fit_after_basic_refit"] for c in fi["candidates"].values())
+    assert "Frame interpolation" in md
 
 
 def test_search_on_a_coarser_pixel_sample(hot_recording):
