@@ -50,12 +50,19 @@ Effects and the sources they follow:
   sequence, emit Poisson events at ``hot_pixel_hz`` regardless of the scene; each hot pixel
   has a fixed polarity (ON or OFF with probability 1/2).
 * ``jitter_us`` s and ``latency_us`` d (v2e Sec. 3.4 timestamp jitter; DVS-Voltmeter):
-  ``t' = t + round(d + s z)``, ``z ~ N(0, 1)`` truncated to [-4, 4], events re-sorted;
-  times are clipped at the sequence start.
+  ``t' = t + round(d + s z)``, ``z ~ N(0, 1)`` truncated to [-4, 4] (clipped: the mass
+  beyond +-4 sits at +-4), ``round(v) = floor(v + 0.5)``, events re-sorted; times are
+  clipped at the sequence start. The shift ``m`` is an integer with the exact law
+  ``P(m <= k) = Phi((k + 0.5 - d) / s)`` for ``(k + 0.5 - d) / s`` in (-4, 4] (0 below, 1
+  above), so it is drawn from that table with one uniform per event (alias method,
+  Walker, ACM TOMS 1977; construction of Vose, IEEE TSE 1991) rather than through a
+  normal draw; tables above :data:`MAX_SHIFT_TABLE` entries fall back to one normal per
+  event.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -69,6 +76,8 @@ MIN_THRESHOLD = 0.01
 CUTOFF_FLOOR = 20.0 / 255.0
 #: Truncation of the Gaussian timestamp jitter, in standard deviations.
 JITTER_TRUNCATE = 4.0
+#: Most entries of the jitter alias table (8 jitter_us + 2); wider jitter draws normals.
+MAX_SHIFT_TABLE = 1 << 20
 
 
 # --- per-sequence pixel parameters -----------------------------------------------------
@@ -165,27 +174,125 @@ def timing_shift_bounds(degrade: DegradeConfig) -> tuple[int, int]:
     return int(math.floor(degrade.latency_us - s)), int(math.ceil(degrade.latency_us + s))
 
 
+@dataclass(frozen=True)
+class ShiftSampler:
+    """How the timestamp shift of an event is drawn (see :func:`shift_sampler`).
+
+    ``mode`` 0: constant ``const_us`` (latency only, no randomness); 1: alias table, shift
+    ``lo_us + j`` with ``j`` from ``prob``/``alias`` and one uniform per event; 2: one
+    standard normal per event, ``floor(latency + sigma clip(z, -4, 4) + 0.5)``.
+    ``lo_us``/``hi_us`` bound every shift."""
+
+    mode: int
+    const_us: int
+    lo_us: int
+    hi_us: int
+    prob: np.ndarray
+    alias: np.ndarray
+    sigma_us: float
+    latency_us: float
+
+
+def shift_pmf(degrade: DegradeConfig) -> tuple[int, np.ndarray]:
+    """``(lo, p)``: ``P(shift = lo + j) = p[j]`` for the jitter/latency shift
+    ``floor(d + s clip(z, -4, 4) + 0.5)``, ``z ~ N(0, 1)``: with
+    ``q_k = (k + 0.5 - d) / s``, ``P(shift <= k) = 0`` for ``q_k <= -4``, ``Phi(q_k)`` for
+    ``-4 < q_k <= 4`` and ``1`` for ``q_k > 4``."""
+    lo, hi = timing_shift_bounds(degrade)
+    d, s = float(degrade.latency_us), float(degrade.jitter_us)
+    k = np.arange(lo, hi + 1, dtype=np.float64)
+    q = (k + 0.5 - d) / s
+    cdf = _phi(q)
+    cdf[q <= -JITTER_TRUNCATE] = 0.0
+    cdf[q > JITTER_TRUNCATE] = 1.0
+    cdf[-1] = 1.0                      # q at hi is > 4 by construction of the bounds
+    return lo, np.diff(np.concatenate([[0.0], cdf]))
+
+
 @njit(cache=True)
-def _shift_times(arr, z, sigma, latency, t_min):
-    use_z = z.shape[0] > 0
-    for i in range(arr.shape[0]):
-        s = latency
-        if use_z:
-            zi = min(max(z[i], -JITTER_TRUNCATE), JITTER_TRUNCATE)
-            s += sigma * zi
-        t = arr[i].t + np.int64(math.floor(s + 0.5))
-        arr[i].t = t if t > t_min else t_min
+def _phi(q):
+    """Standard normal CDF, ``Phi(q) = erfc(-q / sqrt(2)) / 2`` (accurate in the lower tail)."""
+    out = np.empty(q.shape[0])
+    for i in range(q.shape[0]):
+        out[i] = 0.5 * math.erfc(-q[i] / math.sqrt(2.0))
+    return out
+
+
+@njit(cache=True)
+def alias_table(p):
+    """Walker's alias table of the probabilities ``p`` (Vose's stable construction):
+    with ``x = u n`` (u uniform in [0, 1)), ``j = floor(x)``, the draw is ``j`` if
+    ``x - j < prob[j]`` else ``alias[j]``; it has law ``p`` exactly up to rounding."""
+    n = p.shape[0]
+    tot = p.sum()
+    scaled = p * (n / tot)
+    prob = np.ones(n)
+    alias = np.arange(n)
+    small = np.empty(n, np.int64)
+    large = np.empty(n, np.int64)
+    ns = nl = 0
+    for i in range(n):
+        if scaled[i] < 1.0:
+            small[ns] = i
+            ns += 1
+        else:
+            large[nl] = i
+            nl += 1
+    while ns > 0 and nl > 0:
+        ns -= 1
+        s = small[ns]
+        g = large[nl - 1]
+        prob[s] = scaled[s]
+        alias[s] = g
+        scaled[g] = (scaled[g] + scaled[s]) - 1.0
+        if scaled[g] < 1.0:
+            nl -= 1
+            small[ns] = g
+            ns += 1
+    # leftovers are 1 up to rounding
+    return prob, alias
+
+
+def shift_sampler(degrade: DegradeConfig) -> ShiftSampler:
+    """The sampler of the per-event timestamp shift (jitter and latency)."""
+    lo, hi = timing_shift_bounds(degrade)
+    empty_f, empty_i = np.ones(1), np.zeros(1, np.int64)
+    d, s = float(degrade.latency_us), float(degrade.jitter_us)
+    if s <= 0:
+        c = int(math.floor(d + 0.5))
+        return ShiftSampler(0, c, c, c, empty_f, empty_i, 0.0, d)
+    if hi - lo + 1 <= MAX_SHIFT_TABLE:
+        tab_lo, p = shift_pmf(degrade)
+        prob, alias = alias_table(p)
+        return ShiftSampler(1, 0, tab_lo, hi, prob, alias, s, d)
+    # mode 2 clips the unclipped shift to the shifts of z = -4 and z = +4
+    return ShiftSampler(2, 0, int(math.floor(d - JITTER_TRUNCATE * s + 0.5)),
+                        int(math.floor(d + JITTER_TRUNCATE * s + 0.5)), empty_f, empty_i, s, d)
+
+
+def draw_shift_randoms(sampler: ShiftSampler, n: int, rng: np.random.Generator | None) -> np.ndarray:
+    """The random numbers of ``n`` shifts (in event order): uniforms (mode 1), normals
+    (mode 2) or none (mode 0)."""
+    if sampler.mode == 1:
+        return rng.random(n)
+    if sampler.mode == 2:
+        return rng.standard_normal(n)
+    return np.empty(0)
 
 
 def apply_timing(arr: np.ndarray, degrade: DegradeConfig, rng: np.random.Generator | None,
                  t_min: int) -> None:
     """Jitter and latency, in place on the EVENT_DTYPE array ``arr``:
     ``t <- max(t + round(latency + jitter z), t_min)``, z ~ N(0, 1) truncated at
-    :data:`JITTER_TRUNCATE` (one draw per event, in array order). Leaves ``arr`` unsorted."""
+    :data:`JITTER_TRUNCATE` (one draw per event in array order, through
+    :func:`shift_sampler`). Leaves ``arr`` unsorted. (:class:`rdnet.sim.sensor.Sensor`
+    fuses the same shift into its per-chunk sort.)"""
     if (degrade.jitter_us <= 0 and degrade.latency_us <= 0) or arr.size == 0:
         return
-    z = rng.standard_normal(arr.size, dtype=np.float32) if degrade.jitter_us > 0 else np.empty(0, np.float32)
-    _shift_times(arr, z, float(degrade.jitter_us), float(degrade.latency_us), np.int64(t_min))
+    from rdnet.sim.sensor import shift_events      # the jitted loop lives with its other user
+
+    sm = shift_sampler(degrade)
+    shift_events(arr, sm, draw_shift_randoms(sm, arr.size, rng), t_min)
 
 
 def needs_rng(degrade: DegradeConfig) -> bool:

@@ -18,16 +18,34 @@ Interpolators:
       F_t->1 = (1 - t)^2 F_0->1 - t (1 - t) F_1->0
 
   both inputs are backward-warped with ``cv2.remap`` and blended with weights
-  ``(1 - t) V_0`` and ``t V_1`` (Super SloMo Eq. 1), where the visibilities come from the
+  ``(1 - t) V_0`` and ``t V_1`` (Super SloMo Eq. 1). The occlusion masks come from the
   forward-backward consistency check of Sundaram et al. (ECCV 2010):
   ``|F01 + F10(x + F01)|^2 > 0.01 (|F01|^2 + |F10(x + F01)|^2) + 0.5`` marks a pixel of
-  frame 0 as occluded in frame 1 (and symmetrically).
+  frame 0 as occluded in frame 1 (O_0, and symmetrically O_1). The occlusion happens at an
+  unknown time in the interval; taking it uniform gives the expected visibilities
+  ``V_0 = 1 - t O_1(x + F_t->1)`` and ``V_1 = 1 - (1 - t) O_0(x + F_t->0)``, which keep the
+  frames continuous at both ends of the interval (hard masks, ``V = 1 - O``, switch an
+  occluded pixel to the other input right after t = 0: log steps of up to 2.8 that no
+  upsampling removes; benchmarks/bench_interpolate.py).
 * ``linear``: plain blending ``(1 - t) I_0 + t I_1`` (baseline / fallback).
 * ``none``: no frames inserted.
 
 All arrays are float32 linear intensity; colour frames (N, H, W, 3) are warped per
 channel with the flow of their luminance (ITU-R BT.601), and the log-step bound is
 measured on luminance (what a DVS pixel responds to).
+
+Why the bound can fail at the cap: intensity changes linearly in time when an edge moves
+across a pixel (the pixel integrates light), and ``d log(Y + eps) / dY = 1 / (Y + eps)``
+is up to ``1 / eps`` = 100 at black, so a dark pixel beside a bright edge needs ~1,000
+steps per pixel of motion to keep every step under 0.1; the true high-frame-rate frames
+show the same steps (benchmarks/bench_interpolate.py). ``fill_log`` is the final
+guarantee: between consecutive frames that still exceed the bound it inserts frames
+whose log luminance is linear in time, ``log(Y + eps) = (1 - s) L_a + s L_b`` (per
+channel for colour, which bounds the luminance step too). That is exactly the trajectory
+the event simulator assumes between two frames (:mod:`rdnet.sim.sensor`), so the ideal
+sensor's events do not change (up to the microsecond rounding); only effects integrated
+per step (low-pass, shot-noise hazard) see the finer steps. It makes the bound hold for
+every pixel at the price of more steps. :class:`UpsampleStats` reports what was achieved.
 """
 from __future__ import annotations
 
@@ -66,6 +84,9 @@ class InterpolateConfig:
     ``occlusion``: use the forward-backward check to weight the two warps.
     ``verify``: measure the bound on the produced frames and refine the count if violated
     (otherwise the first estimate is used).
+    ``fill_log``: final guarantee. Where the frames at ``max_upsample`` still exceed the
+    bound, insert log-linear frames until every pixel meets it (see the module
+    docstring; limited only by integer-microsecond timestamps).
     """
 
     method: Literal["flow", "linear", "none"] = "flow"
@@ -77,6 +98,7 @@ class InterpolateConfig:
     pixel_quantile: float = 1.0
     occlusion: bool = True
     verify: bool = True
+    fill_log: bool = False
 
     def __post_init__(self):
         if self.method not in ("flow", "linear", "none"):
@@ -96,14 +118,67 @@ class InterpolateConfig:
 
 @dataclass
 class UpsampleStats:
-    """Filled by :func:`upsample` when passed in: what the adaptive choice did."""
+    """Filled by :func:`upsample` when passed in: what the adaptive choice did and the log
+    steps it achieved, measured on the produced frames (luminance, ``|delta log(Y + eps)|``
+    between consecutive output frames).
+
+    ``violations``: pairs whose frames still exceed the bound (the ``pixel_quantile``
+    criterion; every pixel with ``fill_log``). ``max_log_step``: largest criterion of any
+    pair. ``strict_max_log_step``: largest step of any pixel. ``pixel_steps`` /
+    ``pixel_steps_over``: pixel-steps in total / above the bound. ``filled``: log-linear
+    frames inserted by ``fill_log`` (included in ``inserted``). ``needed_upsample``: for
+    the worst pair, a first-order estimate of the steps that would meet the criterion."""
 
     pairs: int = 0
     inserted: int = 0
+    filled: int = 0
     refinements: int = 0
-    violations: int = 0              # pairs whose bound still fails at max_upsample
-    max_log_step: float = 0.0        # largest measured criterion (see log_steps) of any pair
+    violations: int = 0
+    max_log_step: float = 0.0
+    strict_max_log_step: float = 0.0
+    pixel_steps: int = 0
+    pixel_steps_over: int = 0
+    needed_upsample: int = 0
+    bound: float = 0.0
     per_pair: list = field(default_factory=list)   # inserted count per pair
+
+    @property
+    def over_bound_fraction(self) -> float:
+        """Fraction of pixel-steps whose log step exceeds the bound."""
+        return self.pixel_steps_over / self.pixel_steps if self.pixel_steps else 0.0
+
+    def as_dict(self) -> dict:
+        """JSON-able summary (for recording attrs or a stage summary)."""
+        return {"upsample_pairs": self.pairs, "upsample_inserted": self.inserted,
+                "upsample_filled": self.filled, "upsample_violations": self.violations,
+                "log_step_bound": self.bound, "log_step_criterion_max": round(self.max_log_step, 6),
+                "log_step_max": round(self.strict_max_log_step, 6),
+                "log_step_over_fraction": float(f"{self.over_bound_fraction:.6g}"),
+                "log_step_needed_upsample": self.needed_upsample}
+
+    def merge(self, other: "UpsampleStats") -> None:
+        """Add ``other`` (the stats of more pairs) into this one."""
+        for k in ("pairs", "inserted", "filled", "refinements", "violations", "pixel_steps", "pixel_steps_over"):
+            setattr(self, k, getattr(self, k) + getattr(other, k))
+        for k in ("max_log_step", "strict_max_log_step", "needed_upsample", "bound"):
+            setattr(self, k, max(getattr(self, k), getattr(other, k)))
+        self.per_pair.extend(other.per_pair)
+
+    def _record(self, d: np.ndarray, bound: float, crit: float, inserted: int, filled: int) -> None:
+        self.pairs += 1
+        self.inserted += inserted
+        self.filled += filled
+        self.per_pair.append(inserted)
+        self.bound = bound
+        self.max_log_step = max(self.max_log_step, crit)
+        if d.size:
+            self.strict_max_log_step = max(self.strict_max_log_step, float(d.max()))
+            self.pixel_steps += d.size
+            self.pixel_steps_over += int(np.count_nonzero(d > bound))
+        if crit > bound:
+            self.violations += 1
+            self.needed_upsample = max(self.needed_upsample,
+                                       math.ceil((inserted - filled + 1) * crit / bound))
 
 
 # --- helpers ---------------------------------------------------------------------------
@@ -115,18 +190,32 @@ def luminance(images: np.ndarray) -> np.ndarray:
     return images.astype(np.float32, copy=False)
 
 
+def step_sizes(chain: np.ndarray, log_eps: float, *, color: bool) -> np.ndarray:
+    """(K - 1, H, W) float32 ``|log(Y_{k+1} + eps) - log(Y_k + eps)|`` along a
+    (K, H, W[, 3]) chain of frames (Y = luminance)."""
+    y = chain @ _LUMA if color else chain
+    lg = np.log(y.astype(np.float32) + np.float32(log_eps))
+    return np.abs(np.diff(lg, axis=0))
+
+
+def criterion(steps: np.ndarray, quantile: float = 1.0) -> float:
+    """Per pixel the largest step over the chain, then the ``quantile`` of that over the
+    pixels (1.0: the maximum)."""
+    if steps.shape[0] == 0:
+        return 0.0
+    per_pixel = steps.max(axis=0)
+    if quantile >= 1.0:
+        return float(per_pixel.max())
+    return float(np.quantile(per_pixel, quantile))
+
+
 def log_steps(chain: np.ndarray, log_eps: float, *, color: bool, quantile: float = 1.0) -> float:
     """The log-step criterion along a (K, H, W[, 3]) chain of frames: per pixel the largest
     |log(Y_{k+1} + eps) - log(Y_k + eps)| over k, then the ``quantile`` of that over the
     pixels (1.0: the maximum)."""
     if chain.shape[0] < 2:
         return 0.0
-    y = chain @ _LUMA if color else chain
-    lg = np.log(y.astype(np.float32) + np.float32(log_eps))
-    per_pixel = np.abs(np.diff(lg, axis=0)).max(axis=0)
-    if quantile >= 1.0:
-        return float(per_pixel.max())
-    return float(np.quantile(per_pixel, quantile))
+    return criterion(step_sizes(chain, log_eps, color=color), quantile)
 
 
 def _as_float(images: np.ndarray, name: str = "images") -> np.ndarray:
@@ -234,9 +323,12 @@ class PairInterpolator:
         w0 = np.full(gx.shape, 1 - t, np.float32)
         w1 = np.full(gx.shape, t, np.float32)
         if o0 is not None:
-            # content of frame 0 that becomes occluded is invisible in g1 and vice versa
-            w1 = w1 * (1 - _remap(o0, gx, gy, ft0)) + 1e-4 * t
-            w0 = w0 * (1 - _remap(o1, gx, gy, ft1)) + 1e-4 * (1 - t)
+            # content of frame 0 that becomes occluded is invisible in g1 and vice versa;
+            # the occlusion happens at an unknown time, uniform in the interval, so the
+            # expected visibility of g0 is 1 - t o1 and that of g1 is 1 - (1 - t) o0: the
+            # frame stays continuous at both ends (a hard mask would swap sources at t = 0+)
+            w1 = w1 * (1 - (1 - t) * _remap(o0, gx, gy, ft0)) + 1e-4 * t
+            w0 = w0 * (1 - t * _remap(o1, gx, gy, ft1)) + 1e-4 * (1 - t)
         s = w0 + w1
         w0, w1 = w0 / s, w1 / s
         if self.color:
@@ -260,31 +352,73 @@ def interpolate_pair(f0: np.ndarray, f1: np.ndarray, n_inserted: int,
 
 
 def _adaptive(pi: PairInterpolator, cap: int, log_eps: float, cfg: InterpolateConfig,
-              stats: UpsampleStats) -> np.ndarray:
-    """Inserted frames for one pair, count chosen so the measured max log step <= bound."""
+              stats: list[UpsampleStats]) -> tuple[np.ndarray, np.ndarray | None]:
+    """Inserted frames for one pair, count chosen so the measured criterion <= bound (at
+    most ``cap``), and the step sizes of the final chain (None when not measured)."""
     bound = cfg.max_log_step
     if cap <= 0:
-        return np.empty((0,) + pi.f0.shape, np.float32)
+        return np.empty((0,) + pi.f0.shape, np.float32), None
     n = min(cap, max(0, math.ceil(pi.motion_estimate(log_eps, cfg.pixel_quantile) / bound) - 1))
     while True:
         mid = pi.frames(n)
         if not cfg.verify:
-            return mid
+            return mid, None
         chain = np.concatenate([pi.f0[None], mid, pi.f1[None]])
-        m = log_steps(chain, log_eps, color=pi.color, quantile=cfg.pixel_quantile)
+        steps = step_sizes(chain, log_eps, color=pi.color)
+        m = criterion(steps, cfg.pixel_quantile)
         if m <= bound or n >= cap:
-            stats.max_log_step = max(stats.max_log_step, m)
-            stats.violations += int(m > bound)
-            return mid
-        steps = n + 1
+            return mid, steps
+        k = n + 1
         # steps scale ~linearly with the measured step; grow by at least 1.5x
-        new_steps = max(math.ceil(steps * m / bound * 1.05), math.ceil(steps * 1.5), steps + 1)
+        new_steps = max(math.ceil(k * m / bound * 1.05), math.ceil(k * 1.5), k + 1)
         n = min(cap, new_steps - 1)
-        stats.refinements += 1
+        for st in stats:
+            st.refinements += 1
+
+
+#: Fill target relative to the bound (absorbs float32 rounding of the filled frames).
+_FILL_MARGIN = 1e-3
+
+
+def fill_log(chain: np.ndarray, t_us: np.ndarray, log_eps: float, bound: float
+             ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Final guarantee of the bound: between consecutive frames a, b of ``chain`` (K, H, W[, 3])
+    at times ``t_us`` whose largest ``|log(I_b + eps) - log(I_a + eps)|`` (any pixel, any
+    channel) exceeds ``bound``, insert k frames at integer times ``t_j`` with
+    ``log(I_j + eps) = (1 - s_j) log(I_a + eps) + s_j log(I_b + eps)``,
+    ``s_j = (t_j - t_a) / (t_b - t_a)``: log-linear in time, as the event simulator assumes
+    between frames. k is the least count whose longest sub-interval keeps the step under
+    the bound (at most t_b - t_a - 1). Per channel, the luminance step is a weighted mean
+    of the channel steps, so it is bounded too. Returns (chain, t_us, frames inserted)."""
+    eps = np.float32(log_eps)
+    lg = np.log(chain.astype(np.float32) + eps)
+    d = np.abs(np.diff(lg, axis=0))
+    worst = d.reshape(d.shape[0], -1).max(axis=1) if d.size else np.zeros(0, np.float32)
+    target = bound * (1.0 - _FILL_MARGIN)
+    frames, times, added = [chain[:1]], [t_us[:1]], 0
+    for j, m in enumerate(worst.astype(np.float64)):
+        ta, tb = int(t_us[j]), int(t_us[j + 1])
+        span = tb - ta
+        k = max(0, math.ceil(m / target) - 1)
+        k = min(k, span - 1)
+        while k < span - 1 and m * math.ceil(span / (k + 1)) / span > target:
+            k += 1
+        if k > 0:
+            tj = ta + np.rint(np.arange(1, k + 1) * (span / (k + 1))).astype(np.int64)
+            sj = ((tj - ta) / span).astype(np.float32).reshape((k,) + (1,) * (chain.ndim - 1))
+            mid = np.exp((1 - sj) * lg[j] + sj * lg[j + 1]) - eps
+            frames.append(np.maximum(mid, 0).astype(np.float32))
+            times.append(tj)
+            added += k
+        frames.append(chain[j + 1:j + 2])
+        times.append(t_us[j + 1:j + 2])
+    if not added:
+        return chain, t_us, 0
+    return np.concatenate(frames), np.concatenate(times), added
 
 
 def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = InterpolateConfig(),
-             log_eps: float = 0.01, *, stats: UpsampleStats | None = None
+             log_eps: float = 0.01, *, stats: UpsampleStats | None = None, warn: bool = True
              ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """Stream the adaptively upsampled sequence pair by pair.
 
@@ -293,8 +427,11 @@ def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = Inte
     frames inserted before frame i + 1; the last chunk also ends with frame N - 1, so the
     concatenation of all chunks is the whole upsampled sequence (memory: one pair at a time).
     Inserted timestamps are ``t_i + round(k (t_{i+1} - t_i) / (n + 1))`` (integer us, kept
-    strictly increasing by capping n at t_{i+1} - t_i - 1). ``cfg.log_eps`` overrides
-    ``log_eps`` (the sensor's) when set. Pass an :class:`UpsampleStats` to collect counts.
+    strictly increasing by capping n at t_{i+1} - t_i - 1); ``fill_log`` frames go between
+    them. ``cfg.log_eps`` overrides ``log_eps`` (the sensor's) when set. Pass an
+    :class:`UpsampleStats` to collect counts and the achieved log steps; a warning is
+    logged when the bound is not met (``warn``; :func:`warn_if_over` for callers that
+    stream many calls).
     """
     images = np.asarray(images)
     t_us = np.asarray(t_us)
@@ -311,36 +448,57 @@ def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = Inte
     if n > 1 and np.any(np.diff(t_us) <= 0):
         raise ValidationError("t_us", "timestamps must be strictly increasing")
     eps = float(cfg.log_eps if cfg.log_eps is not None else log_eps)
-    stats = UpsampleStats() if stats is None else stats
+    bound = cfg.max_log_step
+    here = UpsampleStats()
+    sts = [here] if stats is None else [here, stats]
     if n == 1:
         yield _as_float(images[:1]), t_us[:1].copy()
         return
-    bad0 = stats.violations
+    color = images.ndim == 4
     for i in range(n - 1):
         f0, f1 = _as_float(images[i]), _as_float(images[i + 1])
         dt = int(t_us[i + 1] - t_us[i])
         cap = min(cfg.max_upsample - 1, dt - 1)
         if cfg.method == "none":
-            mid = np.empty((0,) + f0.shape, np.float32)
+            mid, steps = np.empty((0,) + f0.shape, np.float32), None
         else:
-            mid = _adaptive(PairInterpolator(f0, f1, cfg), cap, eps, cfg, stats)
+            mid, steps = _adaptive(PairInterpolator(f0, f1, cfg), cap, eps, cfg, sts)
         k = mid.shape[0]
         t_mid = t_us[i] + np.rint(np.arange(1, k + 1) * (dt / (k + 1))).astype(np.int64)
+        chain = np.concatenate([f0[None], mid, f1[None]])
+        times = np.concatenate([t_us[i:i + 1], t_mid, t_us[i + 1:i + 2]])
+        filled = 0
+        if cfg.fill_log:
+            chain, times, filled = fill_log(chain, times, eps, bound)
+            if filled:
+                steps = None
+        if steps is None:
+            steps = step_sizes(chain, eps, color=color)
+        crit = criterion(steps, 1.0 if cfg.fill_log else cfg.pixel_quantile)
+        for st in sts:
+            st._record(steps, bound, crit, chain.shape[0] - 2, filled)
         last = i == n - 2
-        parts = [f0[None], mid] + ([f1[None]] if last else [])
-        times = [t_us[i:i + 1], t_mid] + ([t_us[i + 1:i + 2]] if last else [])
-        stats.pairs += 1
-        stats.inserted += k
-        stats.per_pair.append(k)
-        yield np.concatenate(parts).astype(np.float32, copy=False), np.concatenate(times)
-    if stats.violations > bad0:
-        log.warning("log-step bound %.3g exceeded in %d of %d frame pairs at max_upsample=%d",
-                    cfg.max_log_step, stats.violations - bad0, n - 1, cfg.max_upsample)
+        yield (chain if last else chain[:-1]), (times if last else times[:-1])
+    if warn:
+        warn_if_over(here, cfg)
+
+
+def warn_if_over(stats: UpsampleStats, cfg: InterpolateConfig) -> None:
+    """Log a warning with the achieved numbers when pairs of ``stats`` exceed the bound."""
+    if not stats.violations:
+        return
+    log.warning("log-step bound %.3g exceeded in %d of %d frame pairs at max_upsample=%d%s: "
+                "criterion up to %.3g (pixel_quantile %g), %.3g%% of pixel-steps over the bound, "
+                "largest step %.3g; about %d steps per pair would meet it (or set fill_log)",
+                cfg.max_log_step, stats.violations, stats.pairs, cfg.max_upsample,
+                " with fill_log (timestamps too close)" if cfg.fill_log else "",
+                stats.max_log_step, 1.0 if cfg.fill_log else cfg.pixel_quantile,
+                100 * stats.over_bound_fraction, stats.strict_max_log_step, stats.needed_upsample)
 
 
 def upsample_all(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = InterpolateConfig(),
-                 log_eps: float = 0.01, *, stats: UpsampleStats | None = None
+                 log_eps: float = 0.01, *, stats: UpsampleStats | None = None, warn: bool = True
                  ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`upsample` concatenated: ``(images (M, ...), t_us (M,))``."""
-    ims, ts = zip(*upsample(images, t_us, cfg, log_eps, stats=stats))
+    ims, ts = zip(*upsample(images, t_us, cfg, log_eps, stats=stats, warn=warn))
     return np.concatenate(ims), np.concatenate(ts)

@@ -49,10 +49,14 @@ def _grey(images: np.ndarray) -> np.ndarray:
     return Frames(images, np.arange(images.shape[0], dtype=np.int64), 0).grey()
 
 
-def _upsampled(parts: Iterable[Frames], interpolate, log_eps: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-    """Upsample a stream of Frames chunks, carrying the last frame across chunk borders."""
-    from rdnet.sim.interpolate import upsample
+def _upsampled(parts: Iterable[Frames], interpolate, log_eps: float, stats=None
+               ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Upsample a stream of Frames chunks, carrying the last frame across chunk borders
+    (one warning at the end if the log-step bound was exceeded)."""
+    from rdnet.sim.interpolate import UpsampleStats, upsample, warn_if_over
 
+    here = UpsampleStats()
+    sts = [here] if stats is None else [here, stats]
     prev_im = prev_t = None
     for fr in parts:
         if len(fr) == 0:
@@ -62,22 +66,28 @@ def _upsampled(parts: Iterable[Frames], interpolate, log_eps: float) -> Iterator
             ims = np.concatenate([prev_im, ims])
             ts = np.concatenate([prev_t, ts])
         first = True
-        for c_im, c_t in upsample(ims, ts, interpolate, log_eps):
+        part = UpsampleStats()
+        for c_im, c_t in upsample(ims, ts, interpolate, log_eps, stats=part, warn=False):
             if first and prev_im is not None:
                 c_im, c_t = c_im[1:], c_t[1:]
             first = False
             if c_t.size:
                 yield c_im, c_t
+        for st in sts:
+            st.merge(part)
         prev_im, prev_t = fr.images[-1:], fr.t_us[-1:]
+    warn_if_over(here, interpolate)
 
 
 def frame_chunks(frames: Frames | np.ndarray | Iterable[Frames], t_us: np.ndarray | None = None, *,
-                 interpolate=None, log_eps: float = 0.01, chunk: int = DEFAULT_CHUNK
+                 interpolate=None, log_eps: float = 0.01, chunk: int = DEFAULT_CHUNK, stats=None
                  ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """Simulation steps in chunks: ``(grey float32 (K, H, W), t_us (K,))`` with K <= ``chunk``
     (a little more after upsampling), from Frames, an image array with ``t_us``, or an
     iterable of consecutive Frames chunks (e.g. :func:`rdnet.sim.sources.iter_frames`).
-    ``interpolate``: InterpolateConfig (None or method 'none': frames used as given)."""
+    ``interpolate``: InterpolateConfig (None or method 'none': frames used as given);
+    ``stats``: an :class:`rdnet.sim.interpolate.UpsampleStats` that collects what the
+    upsampling achieved (filled once the iterator is exhausted)."""
     if chunk < 1:
         raise ValidationError("chunk", f"must be >= 1, got {chunk}")
     if isinstance(frames, (Frames, np.ndarray)):
@@ -87,7 +97,7 @@ def frame_chunks(frames: Frames | np.ndarray | Iterable[Frames], t_us: np.ndarra
             raise ValidationError("t_us", "not used with an iterable of Frames")
         parts = frames
     if interpolate is not None and getattr(interpolate, "method", "none") != "none":
-        src: Iterable[tuple[np.ndarray, np.ndarray]] = _upsampled(parts, interpolate, log_eps)
+        src: Iterable[tuple[np.ndarray, np.ndarray]] = _upsampled(parts, interpolate, log_eps, stats)
     else:
         src = ((fr.images[i:i + chunk], fr.t_us[i:i + chunk])
                for fr in parts for i in range(0, len(fr), chunk))

@@ -17,17 +17,32 @@ absorbs float rounding at the last crossing).
 :class:`Sensor` holds the per-pixel state in preallocated arrays (reference, thresholds,
 low-pass state, leak offset, time of the last event, readout period of the last event) and
 consumes frames chunk by chunk (:meth:`Sensor.step`), so arbitrarily long inputs stream in
-bounded memory. The hot path is one fused numba kernel, parallel over rows; its events go
-to per-row buffers, are gathered, joined with the per-chunk noise events of
-:mod:`rdnet.sim.effects`, jittered, and sorted once per chunk (counting sort on time).
+bounded memory. Per chunk:
+
+1. numpy (SIMD) computes ``log(I + eps)`` and the low-pass decay ``exp(-2 pi f(I) dt)``
+   into buffers reused from chunk to chunk;
+2. one fused numba kernel, parallel over rows, advances every pixel (low-pass, leak,
+   thresholds, refractory, readout period, and the shot-noise hazard integral) and writes
+   its events to per-row buffers;
+3. the ideal sensor gathers them with a counting sort per step (:func:`_gather_sorted`);
+   with noise or timing effects, the Poisson noise events of :mod:`rdnet.sim.effects`
+   (one Poisson count per pixel per chunk) and the events held back from the previous
+   chunk are merged in one fused pass (:func:`_assemble`) that draws each event's
+   jitter/latency shift (one uniform per event through an alias table of the exact
+   shift distribution) and counting-sorts everything by time.
+
+Random numbers come only from the numpy Generator passed in, drawn in a fixed order, and
+the parallel loops work on a fixed partition of the data, so the same seed and chunking
+give bit-identical events whatever the number of threads.
 """
 from __future__ import annotations
 
 import logging
 import math
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
-from numba import njit, prange
+from numba import get_num_threads, njit, parallel_chunksize, prange
 
 from rdnet.errors import ValidationError
 from rdnet.events.core import EVENT_DTYPE, Events
@@ -41,11 +56,29 @@ CROSSING_TOL = 1e-9
 _NEVER = -(1 << 62)
 _FMAX = 3.0e38
 _NO_ALPHA = np.zeros((1, 1, 1), np.float32)
+#: Iterations per work item of the parallel loops (dynamic scheduling: on a shared machine
+#: a thread that gets less CPU takes fewer rows instead of holding up the others). The
+#: work partition, hence the output, does not depend on it.
+PARALLEL_CHUNK = 2
+#: Pixel-steps per chunk from which the numpy terms run in two threads.
+_THREADED_TERMS = 1 << 20
+_POOL: ThreadPoolExecutor | None = None
+
+
+def _terms_pool() -> ThreadPoolExecutor:
+    global _POOL
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="rdnet-sensor")
+    return _POOL
+
+_ONE_F = np.ones(1)
+_ZERO_I = np.zeros(1, np.int64)
+_EMPTY_F = np.empty(0)
 
 
 @njit(parallel=True, cache=True)
-def _pixel_kernel(logf, decay, use_lp, use_leak, t_us, t_prev,
-                  s_prev, lp, acc, ref, last_t, last_bin,
+def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, t_us, t_prev,
+                  s_prev, lp, acc, ref, last_t, last_bin, lam,
                   thr_on, thr_off, drift, refractory, period,
                   out_t, out_x, out_p, seg, counts, bad, cap):
     """Advance every pixel over the K steps of ``logf`` (K, H, W) log intensity.
@@ -55,8 +88,11 @@ def _pixel_kernel(logf, decay, use_lp, use_leak, t_us, t_prev,
       leak: acc += drift dt; S_k = lp + acc (= L_k when both are off);
       each crossing of ``ref +- theta`` by the segment S_{k-1} -> S_k: ref moves by one
       threshold, event time t_{k-1} + (ref - S_{k-1}) / (S_k - S_{k-1}) dt, emitted unless
-      within ``refractory`` of the last event or in the readout period of the last event.
-    Loops: rows in parallel, then steps, then pixels, so each row buffer is step-ordered;
+      within ``refractory`` of the last event or in the readout period of the last event;
+      shot noise (if ``use_shot``): ``lam += (shot_a + shot_b min(I_k, 1)) dt``, the
+      hazard integral of the chunk (``lin`` = I, clipped at 0 by the caller).
+    Loops: rows in parallel, then steps, then pixels (a branch-free pass over the row, then
+    the pixels that cross), so each row buffer is step-ordered and pixel-ordered per step;
     ``seg[k, y]`` counts the events of row y in step k and ``counts[y]`` the row total
     (events are written while the row total < cap). ``bad[y]`` flags NaN/inf input.
     """
@@ -67,15 +103,25 @@ def _pixel_kernel(logf, decay, use_lp, use_leak, t_us, t_prev,
         n = 0
         isbad = False
         tp = t_prev
+        s0row = np.empty(W)
+        idx = np.empty(W, np.int64)
+        if use_shot:
+            for x in range(W):
+                lam[y, x] = 0.0
         for k in range(K):
             t1 = t_us[k]
             dt = float(t1 - tp)
             n_before = n
+            if use_shot:
+                for x in range(W):
+                    lam[y, x] += (shot_a + shot_b * min(float(lin[k, y, x]), 1.0)) * dt
+            # pass 1, branch-free: new S of every pixel, and the list of pixels that cross
+            m = 0
             for x in range(W):
                 s1 = float(logf[k, y, x])
-                if not (s1 > -_FMAX and s1 < _FMAX):
-                    isbad = True
-                    s1 = 0.0
+                ok = s1 > -_FMAX and s1 < _FMAX
+                isbad |= not ok
+                s1 = s1 if ok else 0.0
                 if use_lp:
                     lpv = lp[y, x]
                     lpv += (1.0 - decay[k, y, x]) * (s1 - lpv)
@@ -85,23 +131,30 @@ def _pixel_kernel(logf, decay, use_lp, use_leak, t_us, t_prev,
                     a = acc[y, x] + drift[y, x] * dt
                     acc[y, x] = a
                     s1 += a
-                s0 = s_prev[y, x]
+                s0row[x] = s_prev[y, x]
                 s_prev[y, x] = s1
                 r = ref[y, x]
+                cross = (s1 - r >= thr_on[y, x] - CROSSING_TOL) | (r - s1 >= thr_off[y, x] - CROSSING_TOL)
+                idx[m] = x
+                m += np.int64(cross)
+            # pass 2: the events of the crossing pixels, in pixel order
+            for q in range(m):
+                x = idx[q]
+                s1 = s_prev[y, x]
+                s0 = s0row[x]
+                r = ref[y, x]
                 ton = thr_on[y, x]
-                toff = thr_off[y, x]
                 if s1 - r >= ton - CROSSING_TOL:
                     pol = 1
                     stp = ton
                     thr = ton
                     sgn = 1.0
-                elif r - s1 >= toff - CROSSING_TOL:
+                else:
+                    toff = thr_off[y, x]
                     pol = 0
                     stp = -toff
                     thr = toff
                     sgn = -1.0
-                else:
-                    continue
                 ds = s1 - s0
                 lt = last_t[y, x]
                 lb = last_bin[y, x]
@@ -133,27 +186,6 @@ def _pixel_kernel(logf, decay, use_lp, use_leak, t_us, t_prev,
             tp = t1
         counts[y] = n
         bad[y] = isbad
-
-
-@njit(parallel=True, cache=True)
-def _linear_terms(lin, dt, lp_coef, lp_floor, shot_a, shot_b, want_lp, expo, want_shot, lam):
-    """Per pixel and step: ``expo = -lp_coef dt (max(I, 0) + lp_floor)`` (exponent of the
-    low-pass decay, exponentiated by the caller), and the shot-noise hazard integral
-    ``lam = sum_k (shot_a + shot_b clip(I_k, 0, 1)) dt_k`` of the chunk."""
-    K, H, W = lin.shape
-    for y in prange(H):
-        if want_shot:
-            for x in range(W):
-                lam[y, x] = 0.0
-        for k in range(K):
-            c = -lp_coef * dt[k]
-            for x in range(W):
-                v = lin[k, y, x]
-                v = v if v > 0.0 else 0.0
-                if want_lp:
-                    expo[k, y, x] = c * (v + lp_floor)
-                if want_shot:
-                    lam[y, x] += (shot_a + shot_b * min(v, 1.0)) * dt[k]
 
 
 @njit(parallel=True, cache=True)
@@ -250,6 +282,143 @@ def _counting_sort(src, tmin, span, out):
             out[j] = src[i]
 
 
+@njit(inline="always")
+def shift_of(i, mode, const, lo, hi, prob, alias, r, sigma, latency):
+    """Shift (integer us) of event ``i`` of a chunk; see :class:`rdnet.sim.effects.ShiftSampler`.
+    (Defined here, next to the jitted functions that inline it: numba's cache does not see
+    changes in other modules.)"""
+    if mode == 0:
+        return np.int64(const)
+    if mode == 1:
+        n = prob.shape[0]
+        x = r[i] * n
+        j = min(np.int64(x), n - 1)
+        # c = (x - j >= prob[j]) as arithmetic (x - j and prob[j] lie in [0, 1]): a compare
+        # here compiles to an unpredictable branch, 4x slower
+        c = np.int64(math.floor((x - j) - prob[j])) + 1
+        return np.int64(lo + j + (alias[j] - j) * c)
+    # floor(d + s clip(z, -4, 4) + 0.5) = the unclipped shift clipped to [lo, hi]
+    v = np.int64(math.floor(latency + sigma * r[i] + 0.5))
+    return min(max(v, np.int64(lo)), np.int64(hi))
+
+
+@njit(cache=True)
+def _shift_in_place(arr, mode, const, lo, hi, prob, alias, r, sigma, latency, t_min):
+    for i in range(arr.shape[0]):
+        t = arr[i].t + shift_of(i, mode, const, lo, hi, prob, alias, r, sigma, latency)
+        arr[i].t = t if t > t_min else t_min
+
+
+def shift_events(arr: np.ndarray, sampler: effects.ShiftSampler, r: np.ndarray, t_min: int) -> None:
+    """``t <- max(t + shift_i, t_min)`` in place on the EVENT_DTYPE array ``arr``, event i
+    using random number ``r[i]`` (:func:`rdnet.sim.effects.draw_shift_randoms`)."""
+    sm = sampler
+    _shift_in_place(arr, sm.mode, sm.const_us, sm.lo_us, sm.hi_us, sm.prob, sm.alias, r, sm.sigma_us,
+                    sm.latency_us, np.int64(t_min))
+
+
+@njit(parallel=True, cache=True)
+def _assemble(out_t, out_x, out_p, seg, cap, held, noise, mode, const, lo_shift, hi_shift, prob, alias, r,
+              sigma, latency, t_min, lo, span, counting, hist_buf, out):
+    """All events of a chunk into ``out`` (EVENT_DTYPE), sorted by time when ``counting``.
+
+    Sources, in this order: ``held`` (events of earlier chunks, already final in time),
+    the kernel's per-row buffers (``seg[k, y]`` events of row y in step k, consecutive
+    from ``y * cap``) and the ``noise`` events. Every kernel and noise event i (in source
+    order) is shifted by :func:`shift_of` (random number ``r[i]``) and
+    clipped below at ``t_min``; then a stable counting sort on ``t - lo`` (``span`` bins)
+    writes ``out``. Parallel over a fixed partition of the sources (held,
+    :data:`_SORT_BLOCKS` blocks of rows, noise); inside a block of rows the order is
+    (step, row, pixel), so reads and writes move through time together. Ties keep source
+    order, so the result does not depend on the number of threads. Without ``counting``
+    the events are written in source order (the caller sorts). ``hist_buf``: int64 scratch
+    of at least (:data:`_SORT_BLOCKS` + 2) ``span`` entries, reused across chunks."""
+    K, H = seg.shape
+    nb = _SORT_BLOCKS
+    rows = (H + nb - 1) // nb
+    NB = nb + 2
+    nh = held.shape[0]
+    start = np.empty((K, H), np.int64)      # first buffer slot of (step k, row y)
+    first = np.zeros(NB + 1, np.int64)      # first slot of each block in source order
+    first[1] = nh
+    for y in range(H):
+        s = y * cap
+        for k in range(K):
+            start[k, y] = s
+            s += seg[k, y]
+    for b in range(nb):
+        c = 0
+        for y in range(b * rows, min(H, (b + 1) * rows)):
+            c += start[K - 1, y] + seg[K - 1, y] - y * cap
+        first[b + 2] = first[b + 1] + c
+    first[NB] = first[NB - 1] + noise.shape[0]
+    hist = hist_buf[:NB * span].reshape((NB, span))
+    for b in prange(NB):
+        hist[b, :] = 0
+        if b == 0:
+            if counting:
+                for i in range(nh):
+                    hist[0, held[i].t - lo] += 1
+        elif b <= nb:
+            i = first[b] - nh
+            for k in range(K):
+                for y in range((b - 1) * rows, min(H, b * rows)):
+                    for j in range(start[k, y], start[k, y] + seg[k, y]):
+                        t = out_t[j] + shift_of(i, mode, const, lo_shift, hi_shift, prob, alias, r, sigma, latency)
+                        if t < t_min:
+                            t = t_min
+                        out_t[j] = t
+                        if counting:
+                            hist[b, t - lo] += 1
+                        i += 1
+        else:
+            i = first[b] - nh
+            for j in range(noise.shape[0]):
+                t = noise[j].t + shift_of(i, mode, const, lo_shift, hi_shift, prob, alias, r, sigma, latency)
+                if t < t_min:
+                    t = t_min
+                noise[j].t = t
+                if counting:
+                    hist[b, t - lo] += 1
+                i += 1
+    if counting:
+        # offsets: bins in time order, sources in order within a bin
+        total = 0
+        for v in range(span):
+            for b in range(NB):
+                c = hist[b, v]
+                hist[b, v] = total
+                total += c
+    else:
+        for b in range(NB):
+            hist[b, 0] = first[b]
+    for b in prange(NB):
+        if b == 0:
+            for i in range(nh):
+                v = held[i].t - lo if counting else 0
+                q = hist[0, v]
+                hist[0, v] = q + 1
+                out[q] = held[i]
+        elif b <= nb:
+            for k in range(K):
+                for y in range((b - 1) * rows, min(H, b * rows)):
+                    for j in range(start[k, y], start[k, y] + seg[k, y]):
+                        t = out_t[j]
+                        v = t - lo if counting else 0
+                        q = hist[b, v]
+                        hist[b, v] = q + 1
+                        out[q].t = t
+                        out[q].x = out_x[j]
+                        out[q].y = y
+                        out[q].p = out_p[j]
+        else:
+            for j in range(noise.shape[0]):
+                v = noise[j].t - lo if counting else 0
+                q = hist[b, v]
+                hist[b, v] = q + 1
+                out[q] = noise[j]
+
+
 def sort_events(arr: np.ndarray) -> np.ndarray:
     """``arr`` (EVENT_DTYPE) stably sorted by time, as a new array (counting sort when the
     time span is small compared with the count, else argsort)."""
@@ -295,8 +464,9 @@ class Sensor:
         self.hot_idx, self.hot_pol = effects.hot_pixels(H, W, degrade, rng)
         self._lp_coef = effects.lowpass_coef(degrade)
         self._shot_a, self._shot_b = effects.shot_rate_coefs(degrade)
-        self._shift_lo, _ = effects.timing_shift_bounds(degrade)
+        self._shift_lo, self._shift_hi = effects.timing_shift_bounds(degrade)
         self._timing = degrade.jitter_us > 0 or degrade.latency_us > 0
+        self._shifts = effects.shift_sampler(degrade) if self._timing else None
         self._use_leak = bool(np.any(self.drift != 0))
         # state
         self.s_prev = np.zeros((H, W))
@@ -312,6 +482,8 @@ class Sensor:
         self._bad = np.zeros(H, np.bool_)
         self._cap = 0
         self._bufs: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._fbufs: dict[tuple[str, np.dtype], np.ndarray] = {}
+        self._hist = np.empty(0, np.int64)
         self.t_prev: int | None = None
         self.t_start: int | None = None
         self._held = np.empty(0, EVENT_DTYPE)
@@ -323,6 +495,15 @@ class Sensor:
             n = cap * self.height
             self._bufs = (np.empty(n, np.int64), np.empty(n, np.uint16), np.empty(n, np.uint8))
             self._cap = cap
+
+    def _chunk_buffer(self, name: str, k: int, dtype) -> np.ndarray:
+        """A reusable (k, H, W) array (no allocation per chunk once the largest chunk is seen)."""
+        key = (name, np.dtype(dtype))
+        buf = self._fbufs.get(key)
+        if buf is None or buf.shape[0] < k:
+            buf = np.empty((k, self.height, self.width), dtype)
+            self._fbufs[key] = buf
+        return buf[:k]
 
     # --- input checks -------------------------------------------------------------------
     def _prepare(self, frames, t_us, is_log: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -376,30 +557,64 @@ class Sensor:
 
     # --- simulation ---------------------------------------------------------------------
     def _chunk_terms(self, fr: np.ndarray, t: np.ndarray, is_log: bool):
-        """Log intensity (float32 for linear input), ``e = exp(-2 pi f(I) dt)`` of the
-        low-pass (the kernel uses alpha = 1 - e) and the shot-noise hazard of the chunk."""
+        """Log intensity ``L`` (float32 for float32 linear input), ``e = exp(-2 pi f(I) dt)``
+        of the low-pass (the kernel uses alpha = 1 - e), and the linear intensity ``I``
+        (clipped at 0) the kernel needs for the shot-noise hazard. Vectorized numpy
+        (SIMD log/exp) into reused buffers, in two threads for large chunks (numpy
+        releases the GIL; each thread fills its own steps, so the result is the same)."""
+        K = t.size
         dt = np.diff(np.concatenate([[self.t_prev], t])).astype(np.float64)
-        need_lin = self._lp_coef > 0 or self._shot_a > 0
+        use_lp = self._lp_coef > 0
+        need_lin = use_lp or self._shot_a > 0
+        eps = self.sensor.log_eps
         if is_log:
             logf = fr
-            lin = (np.exp(fr) - self.sensor.log_eps).astype(np.float32) if need_lin else None
+            lin = self._chunk_buffer("lin", K, np.float32) if need_lin else None
         else:
-            mn = fr.min() if fr.size else 0.0
+            logf = self._chunk_buffer("log", K, fr.dtype)
+            lin = fr
+        decay = self._chunk_buffer("decay", K, np.float32) if use_lp else _NO_ALPHA
+        c = (-self._lp_coef * dt).astype(np.float32)[:, None, None]
+
+        def fill(a: int, b: int) -> float:
+            """Steps a..b-1; returns the smallest linear input (NaN if any) of the slice."""
+            mn = 0.0
+            if is_log:
+                if need_lin:
+                    li = lin[a:b]
+                    np.exp(fr[a:b], out=li, casting="same_kind")
+                    np.subtract(li, np.float32(eps), out=li)
+                    np.maximum(li, np.float32(0.0), out=li)
+            else:
+                mn = fr[a:b].min()
+                if not mn >= 0:
+                    return float(mn)                # raised by the caller
+                lg = logf[a:b]
+                np.add(fr[a:b], fr.dtype.type(eps), out=lg)
+                np.log(lg, out=lg)
+            if use_lp:
+                # e = exp(-c dt_k (I + floor))
+                de = decay[a:b]
+                np.add(lin[a:b], np.float32(effects.CUTOFF_FLOOR), out=de, casting="same_kind")
+                np.multiply(de, c[a:b], out=de)
+                np.exp(de, out=de)
+            return float(mn)
+
+        if K >= 2 and fr[0].size * K >= _THREADED_TERMS and get_num_threads() > 1:
+            h = K // 2
+            mins = list(_terms_pool().map(lambda ab: fill(*ab), [(0, h), (h, K)]))
+        else:
+            mins = [fill(0, K)]
+        if not is_log:
+            mn = min(mins) if not any(m != m for m in mins) else float("nan")
             if not mn >= 0:
                 raise ValidationError("frames", "frames contain NaN or negative intensity"
                                       + ("" if mn != mn else f" ({float(mn)})"))
-            lin = fr
-            logf = np.add(fr, fr.dtype.type(self.sensor.log_eps))
-            np.log(logf, out=logf)
-        decay = _NO_ALPHA
-        if need_lin:
-            if self._lp_coef > 0:
-                decay = np.empty(lin.shape, np.float32)
-            _linear_terms(lin, dt, self._lp_coef, effects.CUTOFF_FLOOR, self._shot_a, self._shot_b,
-                          self._lp_coef > 0, decay, self._shot_a > 0, self.shot_lam)
-            if self._lp_coef > 0:
-                np.exp(decay, out=decay)
-        return logf, decay
+        if self._shot_a <= 0:
+            lin = _NO_ALPHA                         # the kernel reads it for shot noise only
+        elif lin.dtype != np.float32:
+            lin = lin.astype(np.float32)
+        return logf, decay, lin
 
     def step(self, frames: np.ndarray, t_us: np.ndarray, *, log: bool = False) -> Events:
         """Consume frames (K, H, W) at times ``t_us`` (K,) int64 us, after all frames seen
@@ -415,8 +630,12 @@ class Sensor:
             fr, t = fr[1:], t[1:]
             if t.size == 0:
                 return Events.empty(self.width, self.height)
+        with parallel_chunksize(PARALLEL_CHUNK):
+            return self._step(fr, t, log)
+
+    def _step(self, fr: np.ndarray, t: np.ndarray, log: bool) -> Events:
         t0, t1 = int(self.t_prev), int(t[-1])
-        logf, decay = self._chunk_terms(fr, t, log)
+        logf, decay, lin = self._chunk_terms(fr, t, log)
         for src, dst in zip(self._state, self._backup):
             np.copyto(dst, src)
         if self._cap == 0:
@@ -425,9 +644,10 @@ class Sensor:
         seg = np.zeros((t.size, self.height), np.int64)
         while True:
             out_t, out_x, out_p = self._bufs
-            _pixel_kernel(logf, decay, self._lp_coef > 0, self._use_leak, t, t0,
+            _pixel_kernel(logf, decay, lin, self._lp_coef > 0, self._use_leak, self._shot_a > 0,
+                          self._shot_a, self._shot_b, t, t0,
                           self.s_prev, self.lp, self.acc, self.ref, self.last_t, self.last_bin,
-                          self.thr_on, self.thr_off, self.drift,
+                          self.shot_lam, self.thr_on, self.thr_off, self.drift,
                           float(self.degrade.refractory_us), float(self.degrade.sample_period_us),
                           out_t, out_x, out_p, seg, self._counts, self._bad, self._cap)
             bad = self._bad.any()
@@ -441,23 +661,21 @@ class Sensor:
                 continue
             break
         self.t_prev = t1
-        arr = np.empty(int(self._counts.sum()), EVENT_DTYPE)
-        if arr.size:
-            _gather_sorted(out_t, out_x, out_p, seg, self._cap, t, t0, arr)
-        parts = [arr]
+        n_kernel = int(self._counts.sum())
         d, rng = self.degrade, self.rng
+        noise = []
         if self._shot_a > 0:
-            parts.append(effects.poisson_events(self.shot_lam.ravel(), None, t0, t1, self.width, rng))
+            noise.append(effects.poisson_events(self.shot_lam.ravel(), None, t0, t1, self.width, rng))
         if self.hot_idx.size:
             lam = np.full(self.hot_idx.size, d.hot_pixel_hz * (t1 - t0) * 1e-6)
-            parts.append(effects.poisson_events(lam, self.hot_idx, t0, t1, self.width, rng, self.hot_pol))
-        if self._timing:
-            parts = [self._held] + parts
-        if len(parts) > 1:
-            arr = np.concatenate(parts)
-            if self._timing:
-                effects.apply_timing(arr[self._held.size:], d, rng, self.t_start)
-            arr = sort_events(arr)
+            noise.append(effects.poisson_events(lam, self.hot_idx, t0, t1, self.width, rng, self.hot_pol))
+        if not noise and not self._timing:
+            arr = np.empty(n_kernel, EVENT_DTYPE)
+            if arr.size:
+                _gather_sorted(out_t, out_x, out_p, seg, self._cap, t, t0, arr)
+            self.n_events += arr.shape[0]
+            return Events(arr, self.width, self.height, validate=False)
+        arr = self._assemble(seg, noise, n_kernel, t0, t1)
         if self._timing:
             # events of later chunks have t >= t1 + shift_lo: everything before is final
             cut = int(np.searchsorted(arr["t"], t1 + self._shift_lo, "left"))
@@ -465,6 +683,37 @@ class Sensor:
             arr = arr[:cut]
         self.n_events += arr.shape[0]
         return Events(arr, self.width, self.height, validate=False)
+
+    def _assemble(self, seg: np.ndarray, noise: list[np.ndarray], n_kernel: int, t0: int, t1: int) -> np.ndarray:
+        """Held, kernel and noise events of the chunk, time-shifted (jitter, latency) and
+        sorted in one fused pass (:func:`_assemble`)."""
+        noise_arr = np.concatenate(noise) if len(noise) > 1 else (noise[0] if noise else np.empty(0, EVENT_DTYPE))
+        held = self._held
+        n_new = n_kernel + noise_arr.shape[0]
+        sm = self._shifts
+        if sm is None:
+            mode, const, lo_s, hi_s, prob, alias, sig, lat = 0, 0, 0, 0, _ONE_F, _ZERO_I, 0.0, 0.0
+            r = _EMPTY_F
+            lo, hi = t0, t1
+        else:
+            mode, const, lo_s, hi_s, prob, alias, sig, lat = (sm.mode, sm.const_us, sm.lo_us, sm.hi_us, sm.prob,
+                                                             sm.alias, sm.sigma_us, sm.latency_us)
+            r = effects.draw_shift_randoms(sm, n_new, self.rng)
+            lo, hi = max(t0 + self._shift_lo, self.t_start), t1 + self._shift_hi
+        n_all = held.shape[0] + n_new
+        span = hi - lo + 1
+        counting = span <= 4 * n_all + 65536
+        out = np.empty(n_all, EVENT_DTYPE)
+        out_t, out_x, out_p = self._bufs
+        need = (_SORT_BLOCKS + 2) * (span if counting else 1)
+        if self._hist.size < need:
+            self._hist = np.empty(need, np.int64)
+        _assemble(out_t, out_x, out_p, seg, self._cap, held, noise_arr, mode, const, lo_s, hi_s,
+                  prob, alias, r, sig, lat, np.int64(self.t_start), np.int64(lo), np.int64(span if counting else 1),
+                  counting, self._hist, out)
+        if not counting:
+            out = out[np.argsort(out["t"], kind="stable")]
+        return out
 
     def flush(self) -> Events:
         """Events held back for the jitter re-sort (call once at the end)."""

@@ -6,7 +6,7 @@ import pytest
 
 from rdnet.config import from_dict
 from rdnet.errors import ConfigError
-from rdnet.events.core import Events, concatenate
+from rdnet.events.core import EVENT_DTYPE, Events, concatenate
 from rdnet.sim import effects
 from rdnet.sim.sensor import Sensor
 from rdnet.sim.settings import DegradeConfig, RandomizeConfig, SensorConfig
@@ -236,3 +236,49 @@ def test_rng_required_for_random_effects():
     with pytest.raises(ValidationError, match="rng"):
         Sensor(4, 4, SensorConfig(), DegradeConfig(shot_noise_hz=1.0), None)
     Sensor(4, 4, SensorConfig(), DegradeConfig(refractory_us=10, latency_us=5), None)
+
+
+@pytest.mark.parametrize("jitter,latency", [(100.0, 50.0), (0.3, 2.7), (2500.0, -0.0)])
+def test_jitter_shift_table_is_the_rounded_truncated_normal(jitter, latency):
+    """The alias table holds the exact law of floor(d + s clip(z, -4, 4) + 0.5)."""
+    d = DegradeConfig(jitter_us=jitter, latency_us=latency)
+    lo, p = effects.shift_pmf(d)
+    k = lo + np.arange(p.size)
+    phi = np.array([0.5 * math.erfc(-(kk + 0.5 - latency) / jitter / math.sqrt(2)) for kk in k])
+    q = (k + 0.5 - latency) / jitter
+    cdf = np.where(q <= -4, 0.0, np.where(q > 4, 1.0, phi))
+    cdf[-1] = 1.0
+    np.testing.assert_allclose(np.cumsum(p), cdf, atol=1e-12)
+    prob, alias = effects.alias_table(p)
+    implied = prob.copy()
+    np.add.at(implied, alias, 1 - prob)
+    np.testing.assert_allclose(implied / p.size, p, atol=1e-12)
+    # sampled through the sensor's shift (one uniform per event): chi-square against p
+    arr = np.zeros(200_000, EVENT_DTYPE)
+    arr["t"] = 10**8
+    effects.apply_timing(arr, d, np.random.default_rng(0), 0)
+    counts = np.bincount(arr["t"] - 10**8 - lo, minlength=p.size)
+    assert counts.size == p.size
+    e = p * arr.size
+    big = e > 20
+    chi2 = ((counts[big] - e[big]) ** 2 / e[big]).sum()
+    dof = big.sum() - 1
+    assert chi2 < dof + 5 * math.sqrt(2 * dof)
+
+
+def test_output_does_not_depend_on_the_thread_count():
+    import numba
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("one numba thread")
+    rng = np.random.default_rng(4)
+    fr = rng.uniform(0.05, 1, size=(30, 40, 24)).astype(np.float32)
+    t = np.arange(30, dtype=np.int64) * 1000
+    old = numba.get_num_threads()
+    try:
+        out = []
+        for n in (1, 2):
+            numba.set_num_threads(n)
+            out.append(run(fr, t, ALL, seed=3, chunk=7)[0].array.tobytes())
+    finally:
+        numba.set_num_threads(old)
+    assert out[0] == out[1]

@@ -131,3 +131,105 @@ def test_config_validation_and_bad_input():
         upsample_all(ims, np.array([5, 5]))
     with pytest.raises(ValidationError):
         upsample_all(ims, np.array([0.0, 1.5]))
+
+
+def _edge_scene(n=3, shift_px=4.0, h=32, w=48):
+    """A sharp black/white edge moving right: the dark pixels beside it need ~1,000 steps
+    per pixel of motion to keep |delta log(Y + 0.01)| under 0.1 (the strict bound fails at
+    any reasonable max_upsample)."""
+    x = np.arange(w, dtype=np.float32)
+    frames = []
+    for i in range(n):
+        edge = 16.0 + shift_px * i
+        frames.append(np.broadcast_to(np.clip(x - edge + 0.5, 0, 1), (h, w)))
+    return np.stack(frames).astype(np.float32), np.arange(n, dtype=np.int64) * 4167
+
+
+def _steps(out, eps=0.01):
+    return np.abs(np.diff(np.log(out.astype(np.float32) + np.float32(eps)), axis=0))
+
+
+def test_capped_bound_is_reported_and_warned(caplog):
+    ims, t = _edge_scene()
+    st = UpsampleStats()
+    cfg = InterpolateConfig(max_log_step=0.1, max_upsample=8)
+    with caplog.at_level("WARNING", logger="rdnet.sim.interpolate"):
+        out, _ = upsample_all(ims, t, cfg, log_eps=0.01, stats=st)
+    d = _steps(out)
+    assert st.violations == 2 and st.pairs == 2 and st.filled == 0
+    assert st.pixel_steps == d.size and st.pixel_steps_over == int((d > 0.1).sum())
+    assert 0 < st.over_bound_fraction < 0.1
+    assert st.strict_max_log_step == pytest.approx(float(d.max()), rel=1e-6) and st.strict_max_log_step > 1.0
+    assert st.needed_upsample > 8
+    assert "exceeded in 2 of 2 frame pairs" in caplog.text
+    summary = st.as_dict()
+    assert summary["upsample_violations"] == 2 and summary["log_step_over_fraction"] == pytest.approx(st.over_bound_fraction, rel=1e-5)
+
+
+@pytest.mark.parametrize("color", [False, True])
+def test_fill_log_guarantees_the_bound_for_every_pixel(color, caplog):
+    ims, t = _edge_scene()
+    if color:
+        ims = np.stack([ims, 0.5 * ims, 0.2 + 0.8 * ims], -1).astype(np.float32)
+    st = UpsampleStats()
+    cfg = InterpolateConfig(max_log_step=0.1, max_upsample=8, fill_log=True)
+    with caplog.at_level("WARNING", logger="rdnet.sim.interpolate"):
+        out, tu = upsample_all(ims, t, cfg, log_eps=0.01, stats=st)
+    assert log_steps(out, 0.01, color=color) <= 0.1          # every pixel, every step
+    assert st.violations == 0 and st.pixel_steps_over == 0 and st.strict_max_log_step <= 0.1
+    assert st.filled > 0 and out.shape[0] == 3 + st.inserted and np.all(np.diff(tu) > 0)
+    np.testing.assert_array_equal(out[np.searchsorted(tu, t)], ims)   # inputs kept
+    assert "exceeded" not in caplog.text
+
+
+def test_fill_log_is_what_the_sensor_assumes_between_frames():
+    """Log-linear fill frames do not change the ideal sensor's events (up to the
+    microsecond rounding): the simulator interpolates log intensity linearly anyway."""
+    from rdnet.sim.pair import simulate
+    ims, t = _edge_scene()
+    plain, tp = upsample_all(ims, t, InterpolateConfig(max_log_step=0.1, max_upsample=8))
+    filled, tf = upsample_all(ims, t, InterpolateConfig(max_log_step=0.1, max_upsample=8, fill_log=True))
+    assert filled.shape[0] > 2 * plain.shape[0]
+    a, b = simulate(plain, tp), simulate(filled, tf)
+    assert len(a) > 100
+    np.testing.assert_array_equal(a.count_per_pixel(1), b.count_per_pixel(1))
+    np.testing.assert_array_equal(a.count_per_pixel(0), b.count_per_pixel(0))
+    ka = np.lexsort((a.t, a.x, a.y, a.p))
+    kb = np.lexsort((b.t, b.x, b.y, b.p))
+    assert np.abs(a.t[ka] - b.t[kb]).max() <= 1
+
+
+def test_occlusion_weights_keep_frames_continuous_at_the_ends(texture):
+    """A textured square moving over another texture: occlusion masks are active, and
+    the interpolated frame still tends to the inputs at t -> 0 and t -> 1."""
+    from rdnet.sim.interpolate import PairInterpolator
+    bg = _translated(texture, [(0, 0)])[0] * 0.8 + 0.1
+    fg = procedural_texture("checkerboard", 64, 64, np.random.default_rng(1))[..., 0]
+    frames = []
+    for dx in (0, 7):
+        f = bg.copy()
+        f[20:40, 14 + dx:34 + dx] = fg[20:40, 14:34] * 0.9 + 0.05
+        frames.append(f)
+    pi = PairInterpolator(frames[0], frames[1], InterpolateConfig(method="flow"))
+    _, _, o0, o1, _, _ = pi._prepare()
+    assert o0.sum() > 10 and o1.sum() > 10
+    for t, ref in ((1e-3, frames[0]), (1 - 1e-3, frames[1])):
+        assert np.abs(pi.frame(t) - ref).max() < 0.02
+
+
+def test_streamed_upsampling_collects_stats_once_per_pair(caplog):
+    """frame_chunks (simulate's path) streams Frames chunks through upsample: the stats
+    cover every pair once and the bound warning is logged once."""
+    from rdnet.events.recording import Frames
+    from rdnet.sim.pair import frame_chunks
+    ims, t = _edge_scene(n=5, shift_px=2.0)
+    cfg = InterpolateConfig(max_log_step=0.1, max_upsample=4)
+    whole = UpsampleStats()
+    upsample_all(ims, t, cfg, log_eps=0.01, stats=whole, warn=False)
+    st = UpsampleStats()
+    parts = [Frames(ims[i:i + 2], t[i:i + 2], np.zeros(len(t[i:i + 2]), np.int64)) for i in range(0, 5, 2)]
+    with caplog.at_level("WARNING", logger="rdnet.sim.interpolate"):
+        steps = sum(len(c[1]) for c in frame_chunks(parts, interpolate=cfg, log_eps=0.01, chunk=7, stats=st))
+    assert st.pairs == whole.pairs == 4 and steps == 5 + st.inserted
+    assert (st.pixel_steps, st.pixel_steps_over, st.violations) == (whole.pixel_steps, whole.pixel_steps_over, whole.violations)
+    assert caplog.text.count("exceeded") == 1
