@@ -111,7 +111,7 @@ class Engine:
 
     def shot_integral(self) -> np.ndarray:
         """(H, W) sum over the steps of clip(I_k, 0, 1) dt_k (us): the intensity-dependent
-        part of the shot-noise hazard (``Sensor``'s ``_linear_terms``)."""
+        part of the shot-noise hazard (computed as in ``Sensor.step``)."""
         if self._shot_int is None:
             dt = np.diff(self.t).astype(np.float64)
             acc = np.zeros(self.lin.shape[1:])

@@ -253,6 +253,18 @@ def _gather_sorted(out_t, out_x, out_p, seg, cap, t_us, t_prev, out):
 _SORT_BLOCKS = 8
 
 
+@njit(cache=True)
+def _exclusive_offsets(hist):
+    """In place: the (blocks, span) counts of a counting sort become each (block, time
+    bin)'s first output index, bins in time order and blocks in order within a bin."""
+    total = 0
+    for v in range(hist.shape[1]):
+        for b in range(hist.shape[0]):
+            c = hist[b, v]
+            hist[b, v] = total
+            total += c
+
+
 @njit(parallel=True, cache=True)
 def _counting_sort(src, tmin, span, out):
     """Stable counting sort of the structured events ``src`` by time into ``out``.
@@ -267,13 +279,7 @@ def _counting_sort(src, tmin, span, out):
     for b in prange(nb):
         for i in range(b * step, min(n, (b + 1) * step)):
             hist[b, src[i].t - tmin] += 1
-    # offsets: bins in time order, blocks in input order within a bin
-    total = 0
-    for v in range(span):
-        for b in range(nb):
-            c = hist[b, v]
-            hist[b, v] = total
-            total += c
+    _exclusive_offsets(hist)   # bins in time order, blocks in input order within a bin
     for b in prange(nb):
         for i in range(b * step, min(n, (b + 1) * step)):
             v = src[i].t - tmin
@@ -382,13 +388,7 @@ def _assemble(out_t, out_x, out_p, seg, cap, held, noise, mode, const, lo_shift,
                     hist[b, t - lo] += 1
                 i += 1
     if counting:
-        # offsets: bins in time order, sources in order within a bin
-        total = 0
-        for v in range(span):
-            for b in range(NB):
-                c = hist[b, v]
-                hist[b, v] = total
-                total += c
+        _exclusive_offsets(hist)   # bins in time order, sources in order within a bin
     else:
         for b in range(NB):
             hist[b, 0] = first[b]
