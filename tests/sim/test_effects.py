@@ -266,10 +266,10 @@ def test_jitter_shift_table_is_the_rounded_truncated_normal(jitter, latency):
     assert chi2 < dof + 5 * math.sqrt(2 * dof)
 
 
+@pytest.mark.skipif(__import__("numba").config.NUMBA_NUM_THREADS < 2,
+                    reason="needs at least 2 numba threads to compare")
 def test_output_does_not_depend_on_the_thread_count():
     import numba
-    if numba.config.NUMBA_NUM_THREADS < 2:
-        pytest.skip("one numba thread")
     rng = np.random.default_rng(4)
     fr = rng.uniform(0.05, 1, size=(30, 40, 24)).astype(np.float32)
     t = np.arange(30, dtype=np.int64) * 1000
