@@ -31,8 +31,6 @@ def write_text_atomic(path: str | Path, text: str) -> Path:
     return path
 
 
-_atomic_write_text = write_text_atomic  # old name, used by rdnet.study.report
-
 
 def _save_figure(fig, path: str | Path) -> Path:
     from rdnet.events.io._common import atomic_output

@@ -6,7 +6,7 @@ import json
 import math
 from pathlib import Path
 
-from rdnet.eval.report import _atomic_write_text, plot_metric_bars, plot_metric_vs_level
+from rdnet.eval.report import write_text_atomic, plot_metric_bars, plot_metric_vs_level
 
 #: (name, minuend row, subtrahend row, paper gap in dB or None)
 GAPS = [("training on degraded events (row 2 - row 1)", "degraded_train", "undegraded_train", 1.07),
@@ -164,12 +164,12 @@ def write_report(details_dir: Path, restoration_path: Path | None, out_dir: Path
     compute = {rid: c for rid, ck in (checkpoints or {}).items() if (c := network_compute(ck))}
     out_dir.mkdir(parents=True, exist_ok=True)
     md = ablation_markdown(rows, rest, compute)
-    _atomic_write_text(out_dir / "ablation.md", md)
+    write_text_atomic(out_dir / "ablation.md", md)
     plot_metric_bars(out_dir / "psnr_rows.png", rows)
     plot_metric_vs_level(out_dir / "psnr_vs_level.png", {k: v for k, v in rows.items() if v.get("by_level")})
     bars, levels = plot_data(rows)
-    _atomic_write_text(out_dir / "plots" / "psnr_rows.json", json.dumps(bars, indent=1) + "\n")
-    _atomic_write_text(out_dir / "plots" / "psnr_vs_level.json", json.dumps(levels, indent=1) + "\n")
+    write_text_atomic(out_dir / "plots" / "psnr_rows.json", json.dumps(bars, indent=1) + "\n")
+    write_text_atomic(out_dir / "plots" / "psnr_vs_level.json", json.dumps(levels, indent=1) + "\n")
     return {"markdown": md, "rows": list(rows)}
 
 

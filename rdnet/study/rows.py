@@ -214,13 +214,13 @@ def evaluate_ablation_row(cfg: AblationConfig, row_id: str, pairs_path: Path,
         if row.filter == "rdnet" and row.events != "degraded":
             raise ConfigError(f"ablation.rows.{row_id}.events", "filter rdnet restores degraded events")
         used = list(seeds) if row.checkpoint else []
-        runs, shared = [], None
+        # seed-independent filters are built once; RDNet's stage 1 is the one of each seed
+        fixed = None if row.filter == "rdnet" else voxel_filter(row.filter, pairs_path, events_dir, cfg.filters)
+        runs = []
         for s in used or [None]:
-            if row.filter == "rdnet":      # the restoring network of the same seed
-                transform = voxel_filter("rdnet", pairs_path, events_dir, cfg.filters,
-                                         seed_checkpoint(row.filter_checkpoint, s), cfg.batch_size, cfg.device)
-            else:
-                transform = shared = shared or voxel_filter(row.filter, pairs_path, events_dir, cfg.filters)
+            transform = fixed if row.filter != "rdnet" else voxel_filter(
+                "rdnet", pairs_path, events_dir, cfg.filters, seed_checkpoint(row.filter_checkpoint, s),
+                cfg.batch_size, cfg.device)
             ck = None if s is None else seed_checkpoint(row.checkpoint, s)
             runs.append(evaluate_row(row.method, ck, pairs_path, row.events, transform, batch_size=cfg.batch_size,
                                      device=cfg.device, level_bins=cfg.level_bins, progress=True))

@@ -51,17 +51,21 @@ def forward_flops(net, crop: int, image_channels: int, bins: int) -> float:
 def _train_one(task, train_cfg, model_cfg, train_path, out, events, init, init_deblur, progress) -> dict:
     """Worker body: one seed's training (also run in-process when parallel is 1)."""
     from rdnet.train.loop import train
+    out = Path(out)
+    record_path = out / "train.json"
+    # a finished run (model.pt, no last.pt) is only re-checked by train(): keep its record
+    finished = record_path.is_file() and (out / "model.pt").is_file() and not (out / "last.pt").is_file()
     t0 = time.perf_counter()
     ck = train(task, train_cfg, model_cfg, train_path, out, events=events, init_checkpoint=init,
                init_deblur=init_deblur, resume=True, progress=progress)
     wall = time.perf_counter() - t0
-    record_path = Path(out) / "train.json"
-    if record_path.is_file() and wall < 1.0:      # already complete: keep the measured time
+    if finished:
         return json.loads(record_path.read_text())
     from rdnet.train.checkpoint import load_model, read_checkpoint
     net, args = load_model(ck), read_checkpoint(ck)["model_args"]
     n_params = int(sum(p.numel() for p in net.parameters()))
-    gflop = 3 * forward_flops(net, train_cfg.crop, int(args["image_channels"]), int(args["bins"])) * train_cfg.batch_size * train_cfg.iterations / 1e9
+    step_flops = 3 * forward_flops(net, train_cfg.crop, int(args["image_channels"]), int(args["bins"]))
+    gflop = step_flops * train_cfg.batch_size * train_cfg.iterations / 1e9
     from rdnet.eval.report import write_text_atomic
     from rdnet.train.distributed import dist_info
     record = {"seed": train_cfg.seed, "task": task, "events": events, "iterations": train_cfg.iterations,

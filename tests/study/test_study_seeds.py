@@ -105,3 +105,17 @@ def test_forward_flops_count_convolutions():
     f1, f2 = forward_flops(deblur, 32, 1, 10), forward_flops(rdnet, 32, 1, 10)
     assert f1 > 0 and f2 > 1.8 * f1                   # RDNet runs two stage networks
     assert forward_flops(deblur, 64, 1, 10) == pytest.approx(4 * f1, rel=0.01)   # linear in pixels
+
+
+def test_train_seeds_reuses_the_record_of_a_finished_run(tmp_path):
+    from rdnet.study.training import train_seeds
+    from rdnet.train.config import ModelConfig, TrainConfig
+    from rdnet.train.synthetic import write_synthetic_pairs
+    pairs = write_synthetic_pairs(tmp_path / "train.h5", n=4, bins=3, height=16, width=16, seed=1)
+    cfg = TrainConfig(iterations=2, batch_size=2, crop=16, device="cpu", log_every=1, ckpt_every=1,
+                      dvclive=False, threads=1)
+    net, study = NetworkConfig(task="deblur"), StudyConfig(seeds=(0, 1), parallel=1)
+    first = train_seeds(net, study, cfg, ModelConfig(size="tiny", width=4), pairs, tmp_path / "m", progress=False)
+    assert [r["seed"] for r in first["runs"]] == [0, 1] and all("train_gflop" in r for r in first["runs"])
+    again = train_seeds(net, study, cfg, ModelConfig(size="tiny", width=4), pairs, tmp_path / "m", progress=False)
+    assert again["runs"] == first["runs"]          # finished: the measured record is kept, not re-timed
