@@ -49,10 +49,13 @@ def _grey(images: np.ndarray) -> np.ndarray:
     return Frames(images, np.arange(images.shape[0], dtype=np.int64), 0).grey()
 
 
-def _upsampled(parts: Iterable[Frames], interpolate, log_eps: float, stats=None
-               ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-    """Upsample a stream of Frames chunks, carrying the last frame across chunk borders
-    (one warning at the end if the log-step bound was exceeded)."""
+def upsample_stream(parts: Iterable[Frames], interpolate, log_eps: float, stats=None
+                    ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Upsample a stream of consecutive Frames chunks (linear intensity): yields
+    ``(images, t_us)`` pieces, the same frames as :func:`rdnet.sim.interpolate.upsample`
+    on the whole sequence, carrying the last frame across chunk borders, so only a chunk
+    is ever in memory. One warning at the end if the log-step bound was exceeded;
+    ``stats`` (an UpsampleStats) collects what the upsampling achieved."""
     from rdnet.sim.interpolate import UpsampleStats, upsample, warn_if_over
 
     here = UpsampleStats()
@@ -97,7 +100,7 @@ def frame_chunks(frames: Frames | np.ndarray | Iterable[Frames], t_us: np.ndarra
             raise ValidationError("t_us", "not used with an iterable of Frames")
         parts = frames
     if interpolate is not None and getattr(interpolate, "method", "none") != "none":
-        src: Iterable[tuple[np.ndarray, np.ndarray]] = _upsampled(parts, interpolate, log_eps, stats)
+        src: Iterable[tuple[np.ndarray, np.ndarray]] = upsample_stream(parts, interpolate, log_eps, stats)
     else:
         src = ((fr.images[i:i + chunk], fr.t_us[i:i + chunk])
                for fr in parts for i in range(0, len(fr), chunk))

@@ -4,6 +4,12 @@ Each step reads the previous step's folder of per-sequence HDF5 recordings
 (``<root>/<split>/seq_XXX.h5``) and writes its own; every file is written atomically.
 Randomness: one ``numpy.random.Generator`` per (study seed, step, split, sequence), so a
 sequence's output does not depend on how many other sequences there are.
+
+Memory: GOPRO sequences (the paper profile) are read, upsampled and simulated in chunks
+of :data:`STREAM_FRAMES` frames (:func:`rdnet.sim.pair.upsample_stream`,
+:func:`rdnet.sim.pair.stream_events`, :class:`rdnet.events.io.H5RecordingWriter`), so
+neither a whole sequence nor its 4-16x upsampled frames nor its events are ever in memory
+at once; the blur step holds one sequence's native frames and events.
 """
 from __future__ import annotations
 
@@ -15,17 +21,22 @@ import numpy as np
 from tqdm import tqdm
 
 from rdnet.config import section, to_dict
-from rdnet.events import Frames, Recording
-from rdnet.events.io import read_events, read_recording, write_recording
+from rdnet.events import Events, Frames
+from rdnet.events.io import H5RecordingWriter, read_events, read_frames, read_header, read_recording
 from rdnet.sim.blur import PairsWriter, make_samples
-from rdnet.sim.interpolate import UpsampleStats, upsample_all
-from rdnet.sim.pair import simulate_pair
+from rdnet.sim.interpolate import UpsampleStats
+from rdnet.sim.pair import DEFAULT_CHUNK, frame_chunks, stream_events, upsample_stream
+from rdnet.sim.sensor import Sensor
 from rdnet.sim.randomize import degradation_level, draw_degrade, scale_degrade
 from rdnet.sim.scenes import SPLITS, render_split
 
 log = logging.getLogger(__name__)
 
 _STEP_IDS = {"scenes": 1, "simulate": 2, "blur": 3}
+
+#: frames per chunk when a sequence is read or written in pieces (the simulation itself
+#: steps in the simulator's chunks, :data:`rdnet.sim.pair.DEFAULT_CHUNK`)
+STREAM_FRAMES = 64
 
 
 def step_rng(params: dict, step: str, split: str, index: int) -> np.random.Generator:
@@ -43,13 +54,14 @@ def sequences(root: Path, split: str) -> list[Path]:
 
 
 def gopro_split(cfg, split: str):
-    """``(attrs, Frames)`` of the GOPRO sequences of ``split`` (``scenes.source: gopro``):
+    """``(attrs, chunks)`` of the GOPRO sequences of ``split`` (``scenes.source: gopro``):
     every sequence folder of ``<gopro_root>/<split>`` in name order, at most ``n_<split>``
-    of them (0: all), at most ``n_frames`` frames each, linear intensity, grey unless
-    ``color``. FormatError naming the folder when the layout is not GOPRO's."""
+    of them (0: all), at most ``n_frames`` frames each; ``chunks`` iterates Frames of at
+    most :data:`STREAM_FRAMES` frames, linear intensity, grey unless ``color``.
+    FormatError naming the folder when the layout is not GOPRO's."""
     from rdnet.errors import FormatError
     from rdnet.sim.interpolate import luminance
-    from rdnet.sim.sources import open_frames
+    from rdnet.sim.sources import iter_frames
     root = Path(cfg.gopro_root) / split
     if not root.is_dir():
         raise FormatError(root, None, "no such folder: scenes.gopro_root must hold train/ and test/ "
@@ -58,11 +70,55 @@ def gopro_split(cfg, split: str):
     if not folders:
         raise FormatError(root, None, "no sequence folders")
     cap = cfg.count(split)
+
+    def chunks(q):
+        for fr in iter_frames(q, max_frames=cfg.n_frames, fps_hz=cfg.fps_hz, chunk_frames=STREAM_FRAMES):
+            if not cfg.color and fr.images.ndim == 4:
+                fr = Frames(luminance(fr.images).astype(np.float32), fr.t_us, fr.exposure_us)
+            yield fr
     for q in folders[:cap] if cap > 0 else folders:
-        fr = open_frames(q, max_frames=cfg.n_frames, fps_hz=cfg.fps_hz)
-        if not cfg.color and fr.images.ndim == 4:
-            fr = Frames(luminance(fr.images).astype(np.float32), fr.t_us, fr.exposure_us)
-        yield {"source": "gopro", "sequence": q.name}, fr
+        yield {"source": "gopro", "sequence": q.name}, chunks(q)
+
+
+def frame_parts(path: Path, chunk: int | None = None):
+    """The frames of an HDF5 recording as stored, in consecutive Frames of at most
+    ``chunk`` (default :data:`STREAM_FRAMES`) frames (FormatError naming the file when it
+    has none)."""
+    from rdnet.errors import FormatError
+    chunk = int(chunk or STREAM_FRAMES)
+    start = 0
+    while True:
+        fr = read_frames(path, start, start + chunk)
+        if fr is None or (len(fr) == 0 and start == 0):
+            raise FormatError(path, "frames", "recording has no frames")
+        if len(fr):
+            yield fr
+        if len(fr) < chunk:
+            return
+        start += chunk
+
+
+def _write_frames(path: Path, chunks, sensor: str, attrs: dict) -> int:
+    """Write Frames chunks as one recording (atomically); returns the frame count."""
+    from rdnet.errors import FormatError
+    n = 0
+    w = None
+    try:
+        for fr in chunks:
+            if w is None:
+                w = H5RecordingWriter(path, fr.width, fr.height, sensor)
+                for k, v in attrs.items():
+                    w.set_attr(k, v)
+            w.write_frames(fr)
+            n += len(fr)
+    except BaseException:
+        if w is not None:
+            w.abort()
+        raise
+    if w is None:
+        raise FormatError(path, "frames", "no frames to write")
+    w.close()
+    return n
 
 
 def render_scenes(params: dict, out: Path) -> dict:
@@ -76,11 +132,10 @@ def render_scenes(params: dict, out: Path) -> dict:
         if cfg.source == "gopro":
             items, total = gopro_split(cfg, split), None
         else:
-            items = ((spec.attrs(), frames) for spec, frames in render_split(cfg, split))
+            items = ((spec.attrs(), [frames]) for spec, frames in render_split(cfg, split))
             total = cfg.count(split)
-        for i, (attrs, frames) in enumerate(tqdm(items, total=total, desc=f"scenes {split}", disable=None)):
-            rec = Recording(frames.width, frames.height, frames=frames, sensor="rdnet-scene")
-            write_recording(out / split / f"seq_{i:03d}.h5", rec, attrs=attrs)
+        for i, (attrs, chunks) in enumerate(tqdm(items, total=total, desc=f"scenes {split}", disable=None)):
+            _write_frames(out / split / f"seq_{i:03d}.h5", chunks, "rdnet-scene", attrs)
             n += 1
         stats[split] = n
     return stats
@@ -95,14 +150,19 @@ def interpolate_scenes(params: dict, src: Path, out: Path) -> dict:
         (out / split).mkdir(parents=True, exist_ok=True)
         inserted, viol = [], 0
         for path in tqdm(sequences(src, split), desc=f"interpolate {split}", disable=None):
-            rec = read_recording(path)
-            fr = rec.require_frames(str(path))
+            _, _, sensor, attrs = read_header(path)
             st = UpsampleStats()
-            images, t_us = upsample_all(fr.linear(), fr.t_us, cfg, log_eps, stats=st)
-            up = Frames(images.astype(np.float32), t_us, np.zeros(len(t_us), np.int64))
-            write_recording(out / split / path.name, Recording(rec.width, rec.height, frames=up,
-                                                               sensor=rec.sensor), attrs=rec.attrs)
-            inserted.append(len(t_us) / max(len(fr), 1))
+            n_in = 0
+
+            def linear(parts):
+                nonlocal n_in
+                for fr in parts:
+                    n_in += len(fr)
+                    yield Frames(fr.linear(), fr.t_us, fr.exposure_us)
+            up = ((im.astype(np.float32), t, np.zeros(len(t), np.int64))
+                  for im, t in upsample_stream(linear(frame_parts(path)), cfg, log_eps, stats=st))
+            n_out = _write_frames(out / split / path.name, (Frames(*a) for a in up), sensor, attrs)
+            inserted.append(n_out / max(n_in, 1))
             viol += st.violations
         summary[split] = {"upsample_factor_mean": float(np.mean(inserted)), "bound_violations": int(viol)}
     return summary
@@ -132,15 +192,28 @@ def simulate_sequences(params: dict, scenes: Path, interp: Path, out: Path, spli
             deg = draw_degrade(base, rand, split, rng)
             if fixed_scale is not None:
                 deg = scale_degrade(base, {k: float(fixed_scale) for k in base.active()})
-            up = read_recording(path).require_frames(str(path))
-            ideal, degraded = simulate_pair(up, None, sensor, deg, rng)
-            orig = read_recording(scenes / split / path.name)
-            attrs = dict(orig.attrs)
+            scene = scenes / split / path.name
+            width, height, _, attrs = read_header(scene)
             attrs["degrade_json"] = json.dumps(to_dict(deg))
             attrs["degradation_level"] = degradation_level(deg, base)
-            rec = Recording(orig.width, orig.height, events=degraded, frames=orig.frames, sensor="rdnet-sim")
-            write_recording(out / split / path.name, rec, extra_events={"events_ideal": ideal}, attrs=attrs)
-            counts.append((len(ideal), len(degraded)))
+            # the ideal and the degraded sensor see the same upsampled frames, chunk by chunk
+            sensors = [Sensor(width, height, sensor, None), Sensor(width, height, sensor, deg, rng)]
+            n = [0, 0]
+            with H5RecordingWriter(out / split / path.name, width, height, "rdnet-sim") as w:
+                for k, v in attrs.items():
+                    w.set_attr(k, v)
+                for fr in frame_parts(scene):          # the sharp frames at their own rate
+                    w.write_frames(fr)
+                groups = ("events_ideal", "events")
+                for g in groups:
+                    w.append_events(Events.empty(width, height), g)
+                # steps in the simulator's own chunks, as simulate_pair takes them: the same bits
+                steps = frame_chunks(frame_parts(path, DEFAULT_CHUNK), log_eps=sensor.log_eps, chunk=DEFAULT_CHUNK)
+                for evs in stream_events(steps, sensors):
+                    for j, (g, ev) in enumerate(zip(groups, evs)):
+                        w.append_events(ev, g)
+                        n[j] += len(ev)
+            counts.append(tuple(n))
         c = np.array(counts, float)
         summary[split] = {"ideal_events": int(c[:, 0].sum()), "degraded_events": int(c[:, 1].sum())}
     return summary

@@ -292,6 +292,15 @@ def read_events(path: str | Path, group: str = "events", t_start_us: int | None 
         return r.slice_time(t_start_us, t_end_us)
 
 
+def read_header(path: str | Path) -> tuple[int, int, str, dict]:
+    """``(width, height, sensor, attrs)`` of an HDF5 recording without reading its events
+    or frames (for streaming a large recording through :func:`read_frames` chunks)."""
+    path = require_file(path)
+    with wrap_errors(path), h5py.File(path, "r") as f:
+        w, h = _sensor_size(f, path)
+        return w, h, str(_py(f.attrs.get("sensor", ""))), _attrs_of(f, path)
+
+
 def read_recording(path: str | Path) -> Recording:
     """Whole recording: /events (if present), /frames (if present), sensor size, name and
     extra root attributes (``Recording.attrs``). Extra event groups: :func:`read_events`."""
