@@ -13,8 +13,10 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -115,10 +117,10 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
         bar.update(1)
 
     try:
-        trials = []
         interps = interpolation_configs(cfg, interpolate)
-        for icfg in interps:
-            ctx = build_context(rec, cfg, sensor.log_eps, interpolate=icfg, source=source)
+        trials = [None] * len(interps)
+        for i, ctx in contexts_as_built(rec, cfg, sensor.log_eps, interps, source):
+            icfg = interps[i]
             obj, fine, search = _objectives(ctx, sensor, degrade, seeds, simulate_fn)
             values, beta = fit_basic(search, fine)
             ev = search(values)          # memoised by the refit: the comparison costs no simulation
@@ -129,7 +131,7 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
             log.info("frame interpolation %s: %d simulated frames, basic refit %s: fit %.3f held-out %.3f; "
                      "best screened effect %s: fit -> %.3f", method, len(ctx.sim_t), values, ev.fit_mean,
                      ev.held_mean, best, reach)
-            trials.append((method, ctx, obj, fine, search, values, beta, ev, reach, best, gains))
+            trials[i] = (method, ctx, obj, fine, search, values, beta, ev, reach, best, gains)
             tick(f"basic refit ({method})")
         chosen = min(trials, key=lambda tr: tr[8])
         method, ctx, obj, fine, search = chosen[:5]
@@ -237,6 +239,23 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
     }
     return Calibration(ctx=ctx, fit=fit, report=report, real_stats=obj.real_all, base_stats=base_stats,
                        basic_stats=basic_stats, fitted_stats=fitted_stats, runtime_s=runtime)
+
+
+def contexts_as_built(rec: Recording, cfg: CalibrateConfig, log_eps: float, interps: list,
+                      source: str) -> Iterator[tuple[int, CalibContext]]:
+    """:func:`build_context` for every interpolation config of ``interps``, each in its
+    own thread, yielding ``(index, context)`` as they are ready: the caller fits on the
+    cheap ones (linear blending) while the optical flow of the others is still being
+    computed (OpenCV and numpy release the GIL, and so do the simulator's kernels), on
+    the second core when there is one. A context does not depend on when it was built."""
+    if len(interps) == 1:
+        yield 0, build_context(rec, cfg, log_eps, interpolate=interps[0], source=source)
+        return
+    with ThreadPoolExecutor(max_workers=len(interps), thread_name_prefix="rdnet-calib-context") as pool:
+        futures = {pool.submit(build_context, rec, cfg, log_eps, interpolate=icfg, source=source): i
+                   for i, icfg in enumerate(interps)}
+        for fut in as_completed(futures):
+            yield futures[fut], fut.result()
 
 
 def interpolation_configs(cfg: CalibrateConfig, interpolate) -> list:

@@ -152,8 +152,8 @@ class Engine:
         s.step(self.lin[:1], self.t[:1])          # the first frame sets the state (linear, as simulate)
         if rand_ref:
             randomize_reference(s, kd, self.reference_phase(seed))
-        if kd.cutoff_hz > 0:                       # the low-pass needs the linear intensity
-            ev = s.step(self.lin[1:], self.t[1:])
+        if kd.cutoff_hz > 0:                       # the low-pass needs the linear intensity too
+            ev = s.step(self.lin[1:], self.t[1:], log_frames=self.log_frames(sensor.log_eps)[1:])
         else:
             ev = s.step(self.log_frames(sensor.log_eps)[1:], self.t[1:], log=True)
         arr = ev.array

@@ -40,6 +40,8 @@ rates; Guo et al. 2022, noise IEI distributions).
 """
 from __future__ import annotations
 
+import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -106,7 +108,7 @@ def summarize_arrays(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray,
         np.ascontiguousarray(t, np.int64), np.ascontiguousarray(x), np.ascontiguousarray(y),
         np.ascontiguousarray(p), int(ctx.width), int(ctx.t0), int(ctx.t1),
         np.ascontiguousarray(ctx.segments[:, 1]), mids, ctx.frame_bin_by_pixel, np.int64(ctx.cfg.time_bin_us),
-        IEI_EDGES,
+        iei_thresholds(),
         S, P, B, K, nI)
     return Summary(pix.reshape(S, P), pix_on.reshape(S, P), ibin.reshape(S, B), ibin_on.reshape(S, B),
                    iei.reshape(S, nI), rate_t)
@@ -125,12 +127,12 @@ def _right(edges, v) -> int:
     return lo
 
 
-@njit(cache=True)
-def _summarize_kernel(t, x, y, p, width, t0, t1, seg_end, mids, frame_bin, tb, iei_edges,
+@njit(cache=True, nogil=True)
+def _summarize_kernel(t, x, y, p, width, t0, t1, seg_end, mids, frame_bin, tb, iei_thr,
                       S, P, B, K, nI):
     # pass 1 (input order): events per pixel; pass 2: each pixel's times and polarities in
     # pixel order; pass 3 (pixel by pixel, so the per-pixel counts are written in order):
-    # sort each pixel's times, then every count
+    # sort each pixel's times, then every count. iei_thr: iei_thresholds()
     pix = np.zeros(S * P, np.int64)
     pix_on = np.zeros(S * P, np.int64)
     ibin = np.zeros(S * B, np.int64)
@@ -146,6 +148,7 @@ def _summarize_kernel(t, x, y, p, width, t0, t1, seg_end, mids, frame_bin, tb, i
     for q in range(P):
         start[q + 1] += start[q]
     fill = start[:P].copy()
+    nm = mids.shape[0]
     m = start[P]
     tt = np.empty(m, np.int64)
     pp = np.empty(m, np.uint8)
@@ -171,12 +174,19 @@ def _summarize_kernel(t, x, y, p, width, t0, t1, seg_end, mids, frame_bin, tb, i
                 k -= 1
             tt[k + 1] = v
             pp[k + 1] = w
+        # a pixel's times are sorted: its segment and nearest frame only move forward
+        rs = _right(seg_end, tt[a])
+        rf = _right(mids, tt[a])
         for j in range(a, e):
             ti = tt[j]
-            s = min(_right(seg_end, ti), S - 1)
+            while rs < S and seg_end[rs] <= ti:
+                rs += 1
+            while rf < nm and mids[rf] <= ti:
+                rf += 1
+            s = min(rs, S - 1)
             on = pp[j] != 0
             pix[s * P + q] += 1
-            b = np.int64(frame_bin[q, _right(mids, ti)])
+            b = np.int64(frame_bin[q, rf])
             ibin[s * B + b] += 1
             if on:
                 pix_on[s * P + q] += 1
@@ -187,16 +197,48 @@ def _summarize_kernel(t, x, y, p, width, t0, t1, seg_end, mids, frame_bin, tb, i
                 dt = ti - tt[j - 1]
                 if dt < 1:
                     dt = 1
-                iei[s * nI + _right(iei_edges, np.log10(np.float64(dt)))] += 1
+                iei[s * nI + _right(iei_thr, dt)] += 1
     return pix, pix_on, ibin, ibin_on, iei, rate_t
 
 
-def band_means(x: np.ndarray, bands) -> np.ndarray:
+@njit(cache=True)
+def _iei_bin(dt) -> int:
+    """Interval histogram bin of an integer interval ``dt`` >= 1 us, by its definition:
+    ``np.searchsorted(IEI_EDGES, log10(dt), side='right')``."""
+    return _right(IEI_EDGES, np.log10(np.float64(dt)))
+
+
+@njit(cache=True)
+def _iei_thresholds_kernel(edges):
+    """See :func:`iei_thresholds` (here, so that log10 is the kernels' own)."""
+    out = np.empty(edges.shape[0], np.int64)
+    for j in range(edges.shape[0]):
+        d = max(np.int64(1), np.int64(math.floor(10.0 ** edges[j])) - 2)
+        while np.log10(np.float64(d)) < edges[j]:
+            d += 1
+        while d > 1 and np.log10(np.float64(d - 1)) >= edges[j]:
+            d -= 1
+        out[j] = d
+    return out
+
+
+@functools.lru_cache(maxsize=1)
+def iei_thresholds() -> np.ndarray:
+    """(len(IEI_EDGES),) int64: the least integer interval (us) whose log10 reaches each
+    edge, computed with the summary kernel's own log10, so that
+    ``searchsorted(thresholds, dt, 'right')`` is the bin of :func:`_iei_bin` for every
+    integer ``dt`` >= 1 (log10 grows with dt) without a logarithm per interval (tested
+    exhaustively up to beyond the last edge)."""
+    return _iei_thresholds_kernel(IEI_EDGES)
+
+
+def band_means(x: np.ndarray, bands, presorted: bool = False) -> np.ndarray:
     """Mean of the sorted values of ``x`` within each quantile band [b_i, b_i+1) (a
-    smooth, seed-stable summary of a distribution; point quantiles of counts jump)."""
+    smooth, seed-stable summary of a distribution; point quantiles of counts jump).
+    ``presorted``: ``x`` is sorted already."""
     if x.size == 0:
         return np.zeros(len(bands) - 1)
-    xs = np.sort(x.ravel())
+    xs = x.ravel() if presorted else np.sort(x.ravel())
     idx = np.rint(np.asarray(bands) * xs.size).astype(np.int64)
     idx[1:] = np.maximum(idx[1:], idx[:-1] + 1)
     idx = np.minimum(idx, xs.size)
@@ -206,39 +248,81 @@ def band_means(x: np.ndarray, bands) -> np.ndarray:
     return (c[hi] - c[lo]) / np.maximum(hi - lo, 1)
 
 
+def sorted_counts(n: np.ndarray) -> np.ndarray:
+    """``np.sort`` of non-negative integer counts (1-D), by counting when they are small
+    compared with their number (per-pixel event counts: mostly 0 and a few)."""
+    if n.size and 0 <= n.min() and n.max() < 4 * n.size:
+        h = np.bincount(n)
+        return np.repeat(np.arange(h.size, dtype=n.dtype), h)
+    return np.sort(n)
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """What :func:`aggregate` needs of a context besides the counts (computed once per
+    context: the search evaluates hundreds of simulations on it)."""
+
+    cell: np.ndarray        # (P,) rate-map cell of each pixel
+    cell_n: np.ndarray      # pixels per cell
+    grid: tuple             # (gh, gw) cells
+    moving: np.ndarray      # (P,) bool
+    static_idx: np.ndarray  # indices of the static pixels
+    widths: np.ndarray      # (K,) seconds of the rate-over-time bins
+    masks: dict             # segment tuple -> (K,) bool: the time bins of those segments
+
+
+def _layout(ctx: CalibContext) -> _Layout:
+    lay = ctx._cache.get("stats_layout")
+    if lay is None:
+        H, W, g = ctx.height, ctx.width, ctx.cfg.grid_px
+        gh, gw = -(-H // g), -(-W // g)
+        cell = ((np.arange(H)[:, None] // g) * gw + (np.arange(W)[None, :] // g)).ravel()
+        static = ctx.static.ravel()
+        st_idx = np.flatnonzero(static)
+        lay = ctx._cache["stats_layout"] = _Layout(
+            cell=cell, cell_n=np.bincount(cell, minlength=gh * gw), grid=(gh, gw), moving=~static,
+            static_idx=st_idx,
+            widths=np.diff(ctx.time_edges).astype(np.float64) * 1e-6, masks={})
+    return lay
+
+
 def aggregate(s: Summary, ctx: CalibContext, segs) -> dict[str, np.ndarray]:
     """Statistics of the segment set ``segs`` (rates in events per pixel per second)."""
     segs = list(segs)
+    lay = _layout(ctx)
     T = ctx.segment_seconds(segs)
     pix = s.pix[segs].sum(0)
     pix_on = s.pix_on[segs].sum(0)
-    static = ctx.static.ravel()
-    moving = ~static
+    moving = lay.moving
     rate_pix = pix / max(T, 1e-9)
-    H, W, g = ctx.height, ctx.width, ctx.cfg.grid_px
-    gh, gw = -(-H // g), -(-W // g)
-    cell = (np.arange(H)[:, None] // g) * gw + (np.arange(W)[None, :] // g)
-    cell_n = np.bincount(cell.ravel(), minlength=gh * gw)
+    H, W = ctx.height, ctx.width
+    gh, gw = lay.grid
     # each cell without its busiest pixel: hot pixels sit at random places, so where they
     # are is not comparable between a simulation and the recording (their number and
     # rate are, in pixel_tail)
     cell_max = np.zeros(gh * gw)
-    np.maximum.at(cell_max, cell.ravel(), rate_pix)
-    rate_map = ((np.bincount(cell.ravel(), weights=rate_pix, minlength=gh * gw) - cell_max)
-                / np.maximum(cell_n - 1, 1))
+    np.maximum.at(cell_max, lay.cell, rate_pix)
+    rate_map = ((np.bincount(lay.cell, weights=rate_pix, minlength=gh * gw) - cell_max)
+                / np.maximum(lay.cell_n - 1, 1))
     occ = ctx.occupancy[segs].sum(0)
     ib = s.ibin[segs].sum(0).astype(np.float64)
     ib_on = s.ibin_on[segs].sum(0).astype(np.float64)
     n_mov = float(pix[moving].sum())
     # the noise-floor statistics leave out the busiest STATIC_TRIM of the static pixels, so
     # that they measure shot noise and leak, not where a few hot pixels happen to sit
-    st_idx = np.flatnonzero(static)
+    st_idx = lay.static_idx
     keep = st_idx[np.argsort(pix[st_idx], kind="stable")[: st_idx.size - int(np.ceil(STATIC_TRIM * st_idx.size))]]
     n_st = float(pix[keep].sum())
     n_st_on = float(pix_on[keep].sum())
     iei = s.iei[segs].sum(0).astype(np.float64)
-    tmask = np.isin(ctx.time_seg, segs)
-    widths = np.diff(ctx.time_edges).astype(np.float64) * 1e-6
+    tmask = lay.masks.get(tuple(segs))
+    if tmask is None:
+        tmask = lay.masks[tuple(segs)] = np.isin(ctx.time_seg, segs)
+        tmask.flags.writeable = False
+    net_n = np.abs(2 * pix_on - pix)
+    # the bands of rates k / T from the sorted counts k (dividing keeps the order)
+    tail = band_means(sorted_counts(net_n) / max(T, 1e-9), TAIL_BANDS, presorted=True)
+    quantiles = band_means(sorted_counts(pix[moving]) / max(T, 1e-9), MOVING_BANDS, presorted=True)
     return {
         "seconds": np.float64(T),
         "count": np.float64(pix.sum()),
@@ -256,10 +340,10 @@ def aggregate(s: Summary, ctx: CalibContext, segs) -> dict[str, np.ndarray]:
         "static_rate": np.float64(n_st / max(T, 1e-9) / max(keep.size, 1)),
         "static_count": np.float64(n_st),
         "static_on_fraction": np.float64((n_st_on + 1.0) / (n_st + 2.0)),
-        "pixel_quantiles": band_means(rate_pix[moving], MOVING_BANDS),
-        "net_rate": np.abs(2 * pix_on - pix).reshape(H, W) / max(T, 1e-9),
-        "pixel_tail": band_means(np.abs(2 * pix_on - pix) / max(T, 1e-9), TAIL_BANDS),
-        "rate_time": np.where(tmask, s.rate_t / widths, 0.0),
+        "pixel_quantiles": quantiles,
+        "net_rate": net_n.reshape(H, W) / max(T, 1e-9),
+        "pixel_tail": tail,
+        "rate_time": np.where(tmask, s.rate_t / lay.widths, 0.0),
         "time_mask": tmask,
     }
 

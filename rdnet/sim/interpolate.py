@@ -264,9 +264,15 @@ def _occluded(f01: np.ndarray, f10: np.ndarray, gx, gy) -> np.ndarray:
     frame whose forward flow is not undone by the backward flow (occluded / unreliable)."""
     back = _remap(f10, gx, gy, f01)
     d = f01 + back
-    lhs = (d * d).sum(-1)
-    rhs = _FB_ALPHA1 * ((f01 * f01).sum(-1) + (back * back).sum(-1)) + _FB_ALPHA2
+    lhs = _sq_norm(d)
+    rhs = _FB_ALPHA1 * (_sq_norm(f01) + _sq_norm(back)) + _FB_ALPHA2
     return (lhs > rhs).astype(np.float32)
+
+
+def _sq_norm(v: np.ndarray) -> np.ndarray:
+    """``(v * v).sum(-1)`` of (H, W, 2) float32 vectors, written out: the same float32
+    ``v0 v0 + v1 v1`` (a numpy reduction over a last axis of length 2 is ~15x slower)."""
+    return v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1]
 
 
 class PairInterpolator:

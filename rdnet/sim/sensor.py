@@ -24,7 +24,7 @@ bounded memory. Per chunk:
 2. one fused numba kernel, parallel over rows, advances every pixel (low-pass, leak,
    thresholds, refractory, readout period, and the shot-noise hazard integral) and writes
    its events to per-row buffers;
-3. the ideal sensor gathers them with a counting sort per step (:func:`_gather_sorted`);
+3. the ideal sensor gathers them with a stable sort per step (:func:`_gather_sorted`);
    with noise or timing effects, the Poisson noise events of :mod:`rdnet.sim.effects`
    (one Poisson count per pixel per chunk) and the events held back from the previous
    chunk are merged in one fused pass (:func:`_assemble`) that draws each event's
@@ -33,7 +33,8 @@ bounded memory. Per chunk:
 
 Random numbers come only from the numpy Generator passed in, drawn in a fixed order, and
 the parallel loops work on a fixed partition of the data, so the same seed and chunking
-give bit-identical events whatever the number of threads.
+give bit-identical events whatever the number of threads. The kernels release the GIL, so
+other Python threads run meanwhile (the calibration upsamples frames in one).
 """
 from __future__ import annotations
 
@@ -60,6 +61,8 @@ _NO_ALPHA = np.zeros((1, 1, 1), np.float32)
 #: a thread that gets less CPU takes fewer rows instead of holding up the others). The
 #: work partition, hence the output, does not depend on it.
 PARALLEL_CHUNK = 2
+#: Work items per thread of the parallel gather of the ideal sensor's events over steps.
+GATHER_ITEMS_PER_THREAD = 4
 #: Pixel-steps per chunk from which the numpy terms run in two threads.
 _THREADED_TERMS = 1 << 20
 _POOL: ThreadPoolExecutor | None = None
@@ -76,7 +79,34 @@ _ZERO_I = np.zeros(1, np.int64)
 _EMPTY_F = np.empty(0)
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True, inline="always")
+def _finite(v):
+    """(v as float64, 0), or (0.0, 1) when v is NaN or infinite (branch-free)."""
+    s = float(v)
+    ok = (s > -_FMAX) & (s < _FMAX)
+    return (s if ok else 0.0), np.int64(not ok)
+
+
+@njit(cache=True, inline="always")
+def _advance(y, x, s1, s_prev, s0row, ref, thr_on, thr_off, crs):
+    """Pixel (y, x) moves to S = ``s1`` (the previous S kept in ``s0row[x]``); ``crs[x]``:
+    whether it crosses a threshold (branch-free)."""
+    s0row[x] = s_prev[y, x]
+    s_prev[y, x] = s1
+    r = ref[y, x]
+    crs[x] = (s1 - r >= thr_on[y, x] - CROSSING_TOL) | (r - s1 >= thr_off[y, x] - CROSSING_TOL)
+
+
+@njit(cache=True, inline="always")
+def _lowpass(lp, decay, k, y, x, s1):
+    """One low-pass step of pixel (y, x) towards ``s1`` (step k); returns the new state."""
+    lpv = lp[y, x]
+    lpv += (1.0 - decay[k, y, x]) * (s1 - lpv)
+    lp[y, x] = lpv
+    return lpv
+
+
+@njit(parallel=True, cache=True, nogil=True)
 def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, t_us, t_prev,
                   s_prev, lp, acc, ref, last_t, last_bin, lam,
                   thr_on, thr_off, drift, refractory, period,
@@ -91,9 +121,9 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
       within ``refractory`` of the last event or in the readout period of the last event;
       shot noise (if ``use_shot``): ``lam += (shot_a + shot_b min(I_k, 1)) dt``, the
       hazard integral of the chunk (``lin`` = I, clipped at 0 by the caller).
-    Loops: rows in parallel, then steps, then pixels (a branch-free pass over the row, then
-    the pixels that cross), so each row buffer is step-ordered and pixel-ordered per step;
-    ``seg[k, y]`` counts the events of row y in step k and ``counts[y]`` the row total
+    Loops: rows in parallel, then steps, then pixels (a branch-free pass over the row that
+    vectorises, then the pixels that cross), so each row buffer is step-ordered and
+    pixel-ordered per step; ``seg[k, y]`` counts the events of row y in step k and ``counts[y]`` the row total
     (events are written while the row total < cap). ``bad[y]`` flags NaN/inf input.
     """
     K, H, W = logf.shape
@@ -105,6 +135,10 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
         tp = t_prev
         s0row = np.empty(W)
         idx = np.empty(W, np.int64)
+        nw = (W + 7) // 8
+        crs8 = np.zeros(nw * 8, np.uint8)       # crossing flags, padded to whole words
+        crs = crs8[:W]
+        words = crs8.view(np.uint64)
         if use_shot:
             for x in range(W):
                 lam[y, x] = 0.0
@@ -115,28 +149,37 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
             if use_shot:
                 for x in range(W):
                     lam[y, x] += (shot_a + shot_b * min(float(lin[k, y, x]), 1.0)) * dt
-            # pass 1, branch-free: new S of every pixel, and the list of pixels that cross
-            m = 0
-            for x in range(W):
-                s1 = float(logf[k, y, x])
-                ok = s1 > -_FMAX and s1 < _FMAX
-                isbad |= not ok
-                s1 = s1 if ok else 0.0
-                if use_lp:
-                    lpv = lp[y, x]
-                    lpv += (1.0 - decay[k, y, x]) * (s1 - lpv)
-                    lp[y, x] = lpv
-                    s1 = lpv
-                if use_leak:
+            # pass 1: new S of every pixel and whether it crosses, in a loop without
+            # branches per configuration (a loop-invariant branch inside keeps it scalar)
+            nbad = 0
+            if use_leak:
+                for x in range(W):
+                    s1, b = _finite(logf[k, y, x])
+                    nbad += b
+                    if use_lp:
+                        s1 = _lowpass(lp, decay, k, y, x, s1)
                     a = acc[y, x] + drift[y, x] * dt
                     acc[y, x] = a
-                    s1 += a
-                s0row[x] = s_prev[y, x]
-                s_prev[y, x] = s1
-                r = ref[y, x]
-                cross = (s1 - r >= thr_on[y, x] - CROSSING_TOL) | (r - s1 >= thr_off[y, x] - CROSSING_TOL)
-                idx[m] = x
-                m += np.int64(cross)
+                    _advance(y, x, s1 + a, s_prev, s0row, ref, thr_on, thr_off, crs)
+            elif use_lp:
+                for x in range(W):
+                    s1, b = _finite(logf[k, y, x])
+                    nbad += b
+                    _advance(y, x, _lowpass(lp, decay, k, y, x, s1), s_prev, s0row, ref, thr_on, thr_off, crs)
+            else:
+                for x in range(W):
+                    s1, b = _finite(logf[k, y, x])
+                    nbad += b
+                    _advance(y, x, s1, s_prev, s0row, ref, thr_on, thr_off, crs)
+            isbad |= nbad > 0
+            # the pixels that cross (few: 8 flags are tested at once)
+            m = 0
+            for w8 in range(nw):
+                if words[w8] != 0:
+                    for x in range(w8 * 8, min(w8 * 8 + 8, W)):
+                        if crs[x]:
+                            idx[m] = x
+                            m += 1
             # pass 2: the events of the crossing pixels, in pixel order
             for q in range(m):
                 x = idx[q]
@@ -188,7 +231,7 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
         bad[y] = isbad
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _gather_sorted(out_t, out_x, out_p, seg, cap, t_us, t_prev, out):
     """Write the per-row, step-ordered buffers into ``out`` (EVENT_DTYPE) sorted by time.
 
@@ -212,7 +255,7 @@ def _gather_sorted(out_t, out_x, out_p, seg, cap, t_us, t_prev, out):
         lo = t_prev if k == 0 else t_us[k - 1]
         span = t_us[k] - lo + 1
         o = stepoff[k]
-        if span <= 4 * m + 65536:
+        if span <= 32 * m + 1024:      # else the histogram costs more than a merge sort
             cnt = np.zeros(span + 1, np.int64)
             for y in range(H):
                 s = y * cap + rowoff[k, y]
@@ -265,7 +308,7 @@ def _exclusive_offsets(hist):
             total += c
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _counting_sort(src, tmin, span, out):
     """Stable counting sort of the structured events ``src`` by time into ``out``.
 
@@ -323,7 +366,7 @@ def shift_events(arr: np.ndarray, sampler: effects.ShiftSampler, r: np.ndarray, 
                     sm.latency_us, np.int64(t_min))
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _assemble(out_t, out_x, out_p, seg, cap, held, noise, mode, const, lo_shift, hi_shift, prob, alias, r,
               sigma, latency, t_min, lo, span, counting, hist_buf, out):
     """All events of a chunk into ``out`` (EVENT_DTYPE), sorted by time when ``counting``.
@@ -556,12 +599,13 @@ class Sensor:
         self.t_prev = self.t_start = int(t0)
 
     # --- simulation ---------------------------------------------------------------------
-    def _chunk_terms(self, fr: np.ndarray, t: np.ndarray, is_log: bool):
-        """Log intensity ``L`` (float32 for float32 linear input), ``e = exp(-2 pi f(I) dt)``
-        of the low-pass (the kernel uses alpha = 1 - e), and the linear intensity ``I``
-        (clipped at 0) the kernel needs for the shot-noise hazard. Vectorized numpy
-        (SIMD log/exp) into reused buffers, in two threads for large chunks (numpy
-        releases the GIL; each thread fills its own steps, so the result is the same)."""
+    def _chunk_terms(self, fr: np.ndarray, t: np.ndarray, is_log: bool, log_frames: np.ndarray | None = None):
+        """Log intensity ``L`` (float32 for float32 linear input; ``log_frames`` when
+        given), ``e = exp(-2 pi f(I) dt)`` of the low-pass (the kernel uses alpha = 1 - e),
+        and the linear intensity ``I`` (clipped at 0) the kernel needs for the shot-noise
+        hazard. Vectorized numpy (SIMD log/exp) into reused buffers, in two threads for
+        large chunks (numpy releases the GIL; each thread fills its own steps, so the
+        result is the same)."""
         K = t.size
         dt = np.diff(np.concatenate([[self.t_prev], t])).astype(np.float64)
         use_lp = self._lp_coef > 0
@@ -571,7 +615,7 @@ class Sensor:
             logf = fr
             lin = self._chunk_buffer("lin", K, np.float32) if need_lin else None
         else:
-            logf = self._chunk_buffer("log", K, fr.dtype)
+            logf = self._chunk_buffer("log", K, fr.dtype) if log_frames is None else log_frames
             lin = fr
         decay = self._chunk_buffer("decay", K, np.float32) if use_lp else _NO_ALPHA
         c = (-self._lp_coef * dt).astype(np.float32)[:, None, None]
@@ -589,9 +633,10 @@ class Sensor:
                 mn = fr[a:b].min()
                 if not mn >= 0:
                     return float(mn)                # raised by the caller
-                lg = logf[a:b]
-                np.add(fr[a:b], fr.dtype.type(eps), out=lg)
-                np.log(lg, out=lg)
+                if log_frames is None:
+                    lg = logf[a:b]
+                    np.add(fr[a:b], fr.dtype.type(eps), out=lg)
+                    np.log(lg, out=lg)
             if use_lp:
                 # e = exp(-c dt_k (I + floor))
                 de = decay[a:b]
@@ -616,26 +661,38 @@ class Sensor:
             lin = lin.astype(np.float32)
         return logf, decay, lin
 
-    def step(self, frames: np.ndarray, t_us: np.ndarray, *, log: bool = False) -> Events:
+    def step(self, frames: np.ndarray, t_us: np.ndarray, *, log: bool = False,
+             log_frames: np.ndarray | None = None) -> Events:
         """Consume frames (K, H, W) at times ``t_us`` (K,) int64 us, after all frames seen
         so far; ``frames`` are linear intensity (float32 in [0, 1] or uint8), or log
         intensity when ``log=True``. The very first frame only sets the state. Returns the
         events that are final (time-sorted; with jitter, the events within the jitter
-        range of the chunk end are held back until the next call or :meth:`flush`)."""
+        range of the chunk end are held back until the next call or :meth:`flush`).
+
+        ``log_frames``: with linear float frames, their ``log(I + log_eps)`` (same shape
+        and dtype) when the caller has it already, e.g. for many simulations of the same
+        frames; it is used instead of computing it (it must be exactly that: the low-pass
+        needs both)."""
         fr, t = self._prepare(frames, t_us, log)
+        if log_frames is not None:
+            if log or log_frames.shape != fr.shape or log_frames.dtype != fr.dtype:
+                got = f"{log_frames.shape} {log_frames.dtype}" + (" with log=True" if log else "")
+                raise ValidationError("log_frames", f"expected {fr.shape} {fr.dtype} with linear frames, got {got}")
+            log_frames = np.ascontiguousarray(log_frames)
         if t.size == 0:
             return Events.empty(self.width, self.height)
         if self.t_prev is None:
             self._init_state(fr[0], t[0], log)
             fr, t = fr[1:], t[1:]
+            log_frames = None if log_frames is None else log_frames[1:]
             if t.size == 0:
                 return Events.empty(self.width, self.height)
         with parallel_chunksize(PARALLEL_CHUNK):
-            return self._step(fr, t, log)
+            return self._step(fr, t, log, log_frames)
 
-    def _step(self, fr: np.ndarray, t: np.ndarray, log: bool) -> Events:
+    def _step(self, fr: np.ndarray, t: np.ndarray, log: bool, log_frames: np.ndarray | None = None) -> Events:
         t0, t1 = int(self.t_prev), int(t[-1])
-        logf, decay, lin = self._chunk_terms(fr, t, log)
+        logf, decay, lin = self._chunk_terms(fr, t, log, log_frames)
         for src, dst in zip(self._state, self._backup):
             np.copyto(dst, src)
         if self._cap == 0:
@@ -672,7 +729,11 @@ class Sensor:
         if not noise and not self._timing:
             arr = np.empty(n_kernel, EVENT_DTYPE)
             if arr.size:
-                _gather_sorted(out_t, out_x, out_p, seg, self._cap, t, t0, arr)
+                # a step holds few events, so a work item of PARALLEL_CHUNK steps costs less
+                # than its scheduling: about GATHER_ITEMS_PER_THREAD items per thread
+                chunk = max(PARALLEL_CHUNK, -(-t.size // (GATHER_ITEMS_PER_THREAD * get_num_threads())))
+                with parallel_chunksize(chunk):
+                    _gather_sorted(out_t, out_x, out_p, seg, self._cap, t, t0, arr)
             self.n_events += arr.shape[0]
             return Events(arr, self.width, self.height, validate=False)
         arr = self._assemble(seg, noise, n_kernel, t0, t1)

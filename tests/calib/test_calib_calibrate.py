@@ -3,6 +3,7 @@ named with their parameters; the report schema and files."""
 import dataclasses
 import json
 
+import numpy as np
 import pytest
 
 from rdnet.calib.calibrate import calibrate, finding
@@ -105,3 +106,19 @@ def test_search_on_a_coarser_pixel_sample(hot_recording):
     assert m["named"] == ["hot_pixels"] and m["param_max_rel_error"] <= 0.25, m
     screened = [e for e in cal.report["effects"] if not e["fitted"]]
     assert all(not e["missing"] and e["confidence"] < 0.5 for e in screened)
+
+
+def test_contexts_built_side_by_side_equal_sequential_builds(hot_recording):
+    """The contexts of the interpolation choice are built in threads; each equals its
+    sequential build, and every index comes once."""
+    from rdnet.calib.calibrate import contexts_as_built, interpolation_configs
+    from rdnet.calib.context import build_context
+
+    rec, _ = hot_recording
+    cfg = dataclasses.replace(calib_cases.CFG, interpolation=("flow", "linear"))
+    interps = interpolation_configs(cfg, calib_cases.INTERP)
+    got = dict(contexts_as_built(rec, cfg, calib_cases.SENSOR.log_eps, interps, "test"))
+    assert sorted(got) == [0, 1]
+    for i, icfg in enumerate(interps):
+        ref = build_context(rec, cfg, calib_cases.SENSOR.log_eps, interpolate=icfg, source="test")
+        assert np.array_equal(got[i].sim_images, ref.sim_images) and np.array_equal(got[i].sim_t, ref.sim_t)

@@ -128,3 +128,45 @@ def test_subsample_context_slices_the_sample(ctx):
     assert np.array_equal(sub.sim_images, ctx.sim_images[:, ::2, ::2])
     assert np.array_equal(sub.intensity_edges, ctx.intensity_edges)
     assert len(sub.real) == int(((ctx.real.x % 2 == 0) & (ctx.real.y % 2 == 0)).sum())
+
+
+def test_sensor_uses_the_log_frames_it_is_given(ctx):
+    """The engine hands the sensor the log frames it keeps (low-pass runs need both the
+    linear and the log intensity): the events are those of the sensor computing them."""
+    from rdnet.errors import ValidationError
+    from rdnet.sim.sensor import Sensor
+
+    d = DegradeConfig(cutoff_hz=100.0)
+    lin, t = ctx.sim_images, ctx.sim_t
+    logf = Engine(ctx).log_frames(SENSOR.log_eps)
+    runs = []
+    for given in (None, logf):
+        s = Sensor(ctx.width, ctx.height, SENSOR, d)
+        runs.append(s.step(lin, t, log_frames=given).array)
+    assert len(runs[0]) > 100 and np.array_equal(runs[0], runs[1])
+    with pytest.raises(ValidationError):
+        Sensor(ctx.width, ctx.height, SENSOR, d).step(lin, t, log_frames=logf.astype(np.float64))
+    with pytest.raises(ValidationError):
+        Sensor(ctx.width, ctx.height, SENSOR, d).step(logf, t, log=True, log_frames=logf)
+
+
+@pytest.mark.parametrize("scale", [1, 5])
+def test_gather_sorts_each_step_stably(scale):
+    """The ideal sensor's gather sorts each step's events by time, ties in row then buffer
+    order, steps in order (an event at a step's end time precedes the next step's), whether
+    the step is sorted by a histogram over its span (scale 1: 1,001 us, 4 events) or by a
+    merge sort (scale 5: the span is long for its events)."""
+    from rdnet.events.core import EVENT_DTYPE
+    from rdnet.sim.sensor import _gather_sorted
+
+    cap = 4
+    # row buffers (t, x): row 0 = step 0: (5, 1), (3, 2); step 1: (1000, 0), (1700, 1)
+    #                     row 1 = step 0: (3, 0), (1000, 3); step 1: (1000, 4)
+    t = np.array([5, 3, 1000, 1700, 3, 1000, 1000, 0], np.int64) * scale
+    x = np.array([1, 2, 0, 1, 0, 3, 4, 0], np.uint16)
+    p = np.array([1, 0, 1, 0, 1, 1, 0, 0], np.uint8)
+    seg = np.array([[2, 2], [2, 1]], np.int64)
+    out = np.empty(7, EVENT_DTYPE)
+    _gather_sorted(t, x, p, seg, cap, np.array([1000, 2000], np.int64) * scale, 0, out)
+    want = [(3, 2, 0), (3, 0, 1), (5, 1, 0), (1000, 3, 1), (1000, 0, 0), (1000, 4, 1), (1700, 1, 0)]
+    assert [(int(e["t"]), int(e["x"]), int(e["y"])) for e in out] == [(a * scale, b, c) for a, b, c in want]

@@ -183,3 +183,40 @@ def test_config_checks():
         CalibrateConfig(seeds=3, search_seeds=4)
     with pytest.raises(ConfigError, match="calibrate.max_fitted"):
         CalibrateConfig(max_fitted=0)
+
+
+def test_iei_thresholds_equal_the_log10_bins():
+    """The interval histogram bins a summary takes from integer thresholds are the bins of
+    the definition (searchsorted of log10(dt) in IEI_EDGES, the kernel's own log10) for
+    every interval up to a quarter decade beyond the last edge."""
+    from numba import njit
+
+    @njit
+    def bins_by_log(d):
+        out = np.empty(d.shape[0], np.int64)
+        for i in range(d.shape[0]):
+            out[i] = st._iei_bin(d[i])
+        return out
+
+    thr = st.iei_thresholds()
+    assert thr[:9].tolist() == [1, 2, 4, 6, 10, 18, 32, 57, 100]
+    assert thr[-1] == 3162278 and len(thr) == len(st.IEI_EDGES)
+    d = np.arange(1, int(10 ** (st.IEI_EDGES[-1] + 0.25)), dtype=np.int64)
+    assert np.array_equal(np.searchsorted(thr, d, side="right"), bins_by_log(d))
+
+
+def test_aggregate_layout_is_computed_once_and_changes_nothing(ctx):
+    """aggregate keeps per-context constants (cells, static pixels, time-bin masks) in the
+    context's cache: the statistics are bit-identical with a cold and a warm cache, and the
+    cached time-bin mask cannot be written through a result."""
+    s = st.summarize(ctx.real, ctx)
+    ctx._cache.pop("stats_layout", None)
+    cold = [st.aggregate(s, ctx, segs) for segs in (ctx.fit, ctx.held, [0, 1])]
+    lay = ctx._cache["stats_layout"]
+    warm = [st.aggregate(s, ctx, segs) for segs in (ctx.fit, ctx.held, [0, 1])]
+    assert ctx._cache["stats_layout"] is lay and len(lay.masks) == 3
+    for a, b in zip(cold, warm):
+        assert a.keys() == b.keys()
+        assert all(np.array_equal(a[k], b[k]) for k in a)
+    with pytest.raises(ValueError):
+        warm[0]["time_mask"][0] = True

@@ -233,3 +233,22 @@ def test_streamed_upsampling_collects_stats_once_per_pair(caplog):
     assert st.pairs == whole.pairs == 4 and steps == 5 + st.inserted
     assert (st.pixel_steps, st.pixel_steps_over, st.violations) == (whole.pixel_steps, whole.pixel_steps_over, whole.violations)
     assert caplog.text.count("exceeded") == 1
+
+
+def test_occlusion_norms_equal_the_axis_sum():
+    """The forward-backward check's squared norms, written out per component, are the
+    float32 sums over the last axis bit for bit, and so is the occlusion mask."""
+    from rdnet.sim import interpolate as ip
+
+    rng = np.random.default_rng(5)
+    f01 = (rng.standard_normal((40, 50, 2)) * 3).astype(np.float32)
+    f10 = (-f01 + rng.standard_normal((40, 50, 2)).astype(np.float32) * 0.5).astype(np.float32)
+    f01[0, 0] = [1e-20, -1e18]
+    assert np.array_equal(ip._sq_norm(f01), (f01 * f01).sum(-1))
+    gx, gy = ip._grid(40, 50)
+    back = ip._remap(f10, gx, gy, f01)
+    d = f01 + back
+    ref = ((d * d).sum(-1) > ip._FB_ALPHA1 * ((f01 * f01).sum(-1) + (back * back).sum(-1))
+           + ip._FB_ALPHA2).astype(np.float32)
+    occ = ip._occluded(f01, f10, gx, gy)
+    assert np.array_equal(occ, ref) and 0 < occ.sum() < occ.size
