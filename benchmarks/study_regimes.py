@@ -8,6 +8,7 @@ set, next to the committed study (``results/rows``). Needs the study's data firs
     .venv/bin/dvc repro blur
     .venv/bin/python benchmarks/study_regimes.py                       # every variant (hours on 2 cores)
     .venv/bin/python benchmarks/study_regimes.py --variants data_x4 --parallel 2
+    .venv/bin/python benchmarks/study_regimes.py --report-only      # table + figure, after `dvc repro`
 
 Results are merged variant by variant into ``benchmarks/results/rdnet_regimes.json``, with
 ``rdnet_regimes.md`` (the table the README quotes) and ``rdnet_regimes.png``. Networks
@@ -44,13 +45,15 @@ def main() -> int:
     ap.add_argument("--work", type=Path, default=ROOT / "data" / "regimes")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "rdnet_regimes.json")
     ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument("--report-only", action="store_true",
+                    help="rewrite the .md/.png from the JSON and the committed study (no training)")
     a = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
         base = load_params(a.params)
         done = json.loads(a.out.read_text()) if a.out.is_file() else {}
         variants = dict(done.get("variants", {}))
-        for name in a.variants:
+        for name in [] if a.report_only else a.variants:
             t0 = time.perf_counter()
             res = regimes.run_variant(name, regimes.VARIANTS[name], base, data_dir=a.data, work=a.work,
                                       parallel=a.parallel, progress=not a.no_progress)
@@ -58,6 +61,8 @@ def main() -> int:
             res["load_average_1min_after"] = os.getloadavg()[0]
             variants[name] = res
             log.info("%s: RDNet - row 2 = %+.2f dB", name, res["gaps"]["rdnet_minus_row2"]["mean"])
+            _write(a.out, base, variants)
+        if a.report_only:
             _write(a.out, base, variants)
     except RdnetError as e:
         print(f"study_regimes: error: {e}", file=sys.stderr)

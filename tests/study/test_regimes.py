@@ -102,3 +102,10 @@ def test_study_reference_reads_the_committed_rows(tmp_path):
     ref = regimes.study_reference(tmp_path)
     assert ref["gaps"]["rdnet_minus_row2"]["mean"] == pytest.approx(0.5)
     assert ref["gaps"]["row2_minus_row1"]["positive"] == 2
+
+
+def test_readme_quotes_the_committed_sweep_table():
+    md = (ROOT / "benchmarks" / "results" / "rdnet_regimes.md").read_text()
+    readme = (ROOT / "README.md").read_text()
+    block = readme.split("<!-- regimes:start (benchmarks/results/rdnet_regimes.md) -->\n")[1].split("<!-- regimes:end -->")[0]
+    assert block == md
