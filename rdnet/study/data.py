@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from rdnet.config import section, to_dict
 from rdnet.events import Events, Frames
-from rdnet.events.io import H5RecordingWriter, read_events, read_frames, read_header, read_recording
+from rdnet.events.io import H5RecordingWriter, read_events, read_header, read_recording
 from rdnet.sim.blur import PairsWriter, make_samples
 from rdnet.sim.interpolate import UpsampleStats
 from rdnet.sim.pair import DEFAULT_CHUNK, frame_chunks, stream_events, upsample_stream
@@ -81,43 +81,28 @@ def gopro_split(cfg, split: str):
 
 
 def frame_parts(path: Path, chunk: int | None = None):
-    """The frames of an HDF5 recording as stored, in consecutive Frames of at most
-    ``chunk`` (default :data:`STREAM_FRAMES`) frames (FormatError naming the file when it
-    has none)."""
-    from rdnet.errors import FormatError
-    chunk = int(chunk or STREAM_FRAMES)
-    start = 0
-    while True:
-        fr = read_frames(path, start, start + chunk)
-        if fr is None or (len(fr) == 0 and start == 0):
-            raise FormatError(path, "frames", "recording has no frames")
-        if len(fr):
-            yield fr
-        if len(fr) < chunk:
-            return
-        start += chunk
+    """The frames of an HDF5 recording in consecutive Frames of at most ``chunk`` (default
+    :data:`STREAM_FRAMES`) frames, linear intensity (FormatError naming the file when it
+    has none): :func:`rdnet.sim.sources.iter_frames` at the study's chunk size."""
+    from rdnet.sim.sources import iter_frames
+    return iter_frames(path, linearize=False, chunk_frames=int(chunk or STREAM_FRAMES))
 
 
 def _write_frames(path: Path, chunks, sensor: str, attrs: dict) -> int:
     """Write Frames chunks as one recording (atomically); returns the frame count."""
+    import itertools
     from rdnet.errors import FormatError
+    chunks = iter(chunks)
+    first = next(chunks, None)
+    if first is None:
+        raise FormatError(path, "frames", "no frames to write")
     n = 0
-    w = None
-    try:
-        for fr in chunks:
-            if w is None:
-                w = H5RecordingWriter(path, fr.width, fr.height, sensor)
-                for k, v in attrs.items():
-                    w.set_attr(k, v)
+    with H5RecordingWriter(path, first.width, first.height, sensor) as w:
+        for k, v in attrs.items():
+            w.set_attr(k, v)
+        for fr in itertools.chain([first], chunks):
             w.write_frames(fr)
             n += len(fr)
-    except BaseException:
-        if w is not None:
-            w.abort()
-        raise
-    if w is None:
-        raise FormatError(path, "frames", "no frames to write")
-    w.close()
     return n
 
 
@@ -154,13 +139,13 @@ def interpolate_scenes(params: dict, src: Path, out: Path) -> dict:
             st = UpsampleStats()
             n_in = 0
 
-            def linear(parts):
+            def counted(parts):
                 nonlocal n_in
                 for fr in parts:
                     n_in += len(fr)
-                    yield Frames(fr.linear(), fr.t_us, fr.exposure_us)
+                    yield fr
             up = ((im.astype(np.float32), t, np.zeros(len(t), np.int64))
-                  for im, t in upsample_stream(linear(frame_parts(path)), cfg, log_eps, stats=st))
+                  for im, t in upsample_stream(counted(frame_parts(path)), cfg, log_eps, stats=st))
             n_out = _write_frames(out / split / path.name, (Frames(*a) for a in up), sensor, attrs)
             inserted.append(n_out / max(n_in, 1))
             viol += st.violations

@@ -53,12 +53,12 @@ def test_streamed_steps_equal_whole_sequence(params, tmp_path, monkeypatch, chun
 
 
 def test_frame_parts_chunks_and_errors(tmp_path, make_recording):
-    rec = make_recording(n_events=10, n_frames=7)
+    rec = make_recording(n_events=10, n_frames=7, dtype=np.float32)     # linear frames pass as stored
     write_recording(tmp_path / "r.h5", rec)
     parts = list(D.frame_parts(tmp_path / "r.h5", chunk=3))
     assert [len(p) for p in parts] == [3, 3, 1]
     assert np.array_equal(np.concatenate([p.images for p in parts]), rec.frames.images)
     assert [len(p) for p in D.frame_parts(tmp_path / "r.h5", chunk=7)] == [7]
-    write_recording(tmp_path / "e.h5", make_recording(n_events=10, n_frames=0))
+    write_recording(tmp_path / "e.h5", make_recording(n_events=10, n_frames=0, dtype=np.float32))
     with pytest.raises(FormatError, match="frames"):
         list(D.frame_parts(tmp_path / "e.h5"))
