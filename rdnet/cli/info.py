@@ -27,7 +27,7 @@ def sensor_size_of(args) -> tuple[int, int] | None:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("info", help="summarize a recording (.h5, .aedat4, .txt, .npz)",
+    p = subparsers.add_parser("info", help="summarize a recording (.h5, .aedat4, .txt, .npz, .npy, .raw, .dat)",
                               description="Print sensor size, duration, event count, ON fraction, event rate, "
                                           "frame count, exposure and frame rate of a recording.")
     p.add_argument("recording", type=Path, help="recording file")
@@ -79,10 +79,54 @@ def format_summary(path: Path, s: dict) -> str:
     return "\n".join(lines)
 
 
+def stream_summary(stream, max_events: int = 1_000_000) -> dict:
+    """The ``Recording.summary()`` dict of an open :class:`~rdnet.events.io.EventStream`,
+    accumulated chunk by chunk (counts, ON/OFF, time and coordinate ranges, an active-pixel
+    bitmap), so a multi-GB Prophesee file is never in memory at once."""
+    import numpy as np
+
+    from rdnet.events import Events
+    from rdnet.events.recording import Recording
+    w, h = stream.width, stream.height
+    n = n_on = 0
+    t_first = t_last = None
+    x_lo = y_lo = 1 << 30
+    x_hi = y_hi = -1
+    active = np.zeros(w * h, bool)
+    for ch in stream.chunks(max_events):
+        if not len(ch):
+            continue
+        n += len(ch)
+        n_on += int(np.count_nonzero(ch.p))
+        t_first = int(ch.t[0]) if t_first is None else t_first
+        t_last = int(ch.t[-1])
+        x, y = ch.x, ch.y
+        x_lo, x_hi = min(x_lo, int(x.min())), max(x_hi, int(x.max()))
+        y_lo, y_hi = min(y_lo, int(y.min())), max(y_hi, int(y.max()))
+        active[y.astype(np.int64) * w + x] = True
+    frames = stream.frames()
+    # the frame part (and sensor, duration over events and frames) from Recording.summary
+    # on a stand-in of the first and last event, so both summaries stay one definition
+    ends = None
+    if stream.has_events:
+        ends = Events.empty(w, h) if n == 0 else Events.from_columns(
+            [t_first, t_last], [0, 0], [0, 0], [0, 0], w, h)
+    s = Recording(w, h, events=ends, frames=frames, sensor=stream.sensor).summary()
+    if stream.has_events:
+        s["events"], s["on_events"], s["off_events"] = n, n_on, n - n_on
+        s["on_fraction"] = n_on / n if n else float("nan")
+        d = 0 if n == 0 else t_last - t_first
+        s["event_rate_hz"] = float(n / (d * 1e-6)) if d > 0 else float("nan")
+        if n:
+            s["x_range"], s["y_range"] = [x_lo, x_hi], [y_lo, y_hi]
+            s["active_pixels"] = int(np.count_nonzero(active))
+    return s
+
+
 def run(args) -> int:
-    from rdnet.events.io import load
-    rec = load(args.recording, sensor_size=sensor_size_of(args))
-    s = rec.summary()
+    from rdnet.events.io import open_events
+    with open_events(args.recording, sensor_size=sensor_size_of(args)) as stream:
+        s = stream_summary(stream)
     extra = _extra_groups(args.recording)
     if extra:
         s["extra_event_groups"] = extra

@@ -7,6 +7,9 @@ suffix             format                      read / write
 .aedat4            AEDAT 4 (iniVation DV)      read
 .txt               ECD / RPG text              both
 .npz               NumPy arrays                both
+.raw               Prophesee RAW (EVT 2/3)     read
+.dat               Prophesee DAT               read
+.npy               x, y, t, p structured array both (reading needs the sensor size)
 =================  ==========================  ============
 """
 from __future__ import annotations
@@ -20,8 +23,9 @@ from rdnet.events.recording import Recording
 
 log = logging.getLogger(__name__)
 
-FORMATS = {".h5": "hdf5", ".hdf5": "hdf5", ".aedat4": "aedat4", ".txt": "text", ".npz": "npz"}
-WRITABLE = ("hdf5", "text", "npz")
+FORMATS = {".h5": "hdf5", ".hdf5": "hdf5", ".aedat4": "aedat4", ".txt": "text", ".npz": "npz",
+           ".raw": "prophesee_raw", ".dat": "prophesee_dat", ".npy": "npy"}
+WRITABLE = ("hdf5", "text", "npz", "npy")
 
 
 def format_of(path: str | Path) -> str:
@@ -43,7 +47,8 @@ def _check_size(path: Path, rec: Recording, sensor_size: tuple[int, int] | None)
 
 def load(path: str | Path, *, sensor_size: tuple[int, int] | None = None) -> Recording:
     """Read a recording. ``sensor_size=(width, height)`` is needed for text files without a
-    size header (when absent it is inferred from the coordinates, with a warning); for
+    size header (when absent it is inferred from the coordinates, with a warning) and for
+    .npy files (required); for
     formats that store the size it is checked against the file."""
     fmt = format_of(path)
     path = require_file(path)
@@ -54,6 +59,12 @@ def load(path: str | Path, *, sensor_size: tuple[int, int] | None = None) -> Rec
     if fmt == "hdf5":
         from rdnet.events.io.hdf5 import read_recording
         rec = read_recording(path)
+    elif fmt in ("prophesee_raw", "prophesee_dat"):
+        from rdnet.events.io.prophesee import read_prophesee
+        rec = read_prophesee(path, sensor_size=sensor_size)
+    elif fmt == "npy":
+        from rdnet.events.io.npy import read_npy
+        rec = read_npy(path, sensor_size)
     elif fmt == "aedat4":
         from rdnet.events.io.aedat4 import read_aedat4
         rec = read_aedat4(path)
@@ -68,13 +79,16 @@ def save(path: str | Path, rec: Recording, **kw) -> None:
     format's writer (e.g. ``extra_events``/``attrs``/``compression`` for HDF5)."""
     fmt = format_of(path)
     if fmt not in WRITABLE:
-        raise FormatError(path, None, f"{fmt} is read-only; write .h5, .txt or .npz")
+        raise FormatError(path, None, f"{fmt} is read-only; write .h5, .txt, .npz or .npy")
     if fmt == "hdf5":
         from rdnet.events.io.hdf5 import write_recording
         write_recording(path, rec, **kw)
     elif fmt == "text":
         from rdnet.events.io.text import write_text
         write_text(path, rec, **kw)
+    elif fmt == "npy":
+        from rdnet.events.io.npy import write_npy
+        write_npy(path, rec, **kw)
     else:
         from rdnet.events.io.npz import write_npz
         write_npz(path, rec, **kw)
