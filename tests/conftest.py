@@ -15,6 +15,8 @@ DAVIS346_AEDAT4 = ROOT / "data" / "real" / "davis346_road" / "davis346.aedat4"
 #: Read-only real data beside the repository (CI has it at ../shared).
 SHARED_REAL = ROOT.parent / "shared" / "real"
 ECD_SHAPES_TXT = SHARED_REAL / "ecd_shapes_subset" / "events.txt"
+PROPHESEE_EVT2_RAW = SHARED_REAL / "prophesee_gen3_sparklers" / "sparklers.raw"
+PROPHESEE_EVT3_RAW = SHARED_REAL / "prophesee_evk4_night" / "night.raw"
 
 
 @pytest.fixture
@@ -94,8 +96,25 @@ def davis346_path() -> Path:
 def ecd_path() -> Path:
     """The ECD 'shapes' subset beside the repository (../shared/real). CI always has it,
     so there its absence is a failure; a local checkout without ../shared skips."""
-    if not ECD_SHAPES_TXT.is_file():
+    return shared_file(ECD_SHAPES_TXT)
+
+
+def shared_file(path: Path) -> Path:
+    """``path`` under ../shared/real: a failure on CI when missing, an xfail elsewhere."""
+    if not path.is_file():
         if os.environ.get("CI"):
-            raise AssertionError(f"{ECD_SHAPES_TXT} missing on CI (../shared must sit beside the repo)")
-        pytest.xfail(f"{ECD_SHAPES_TXT} not available outside CI")
-    return ECD_SHAPES_TXT
+            raise AssertionError(f"{path} missing on CI (../shared must sit beside the repo)")
+        pytest.xfail(f"{path} not available outside CI")
+    return path
+
+
+@pytest.fixture
+def sparklers_path() -> Path:
+    """Prophesee Gen3 EVT 2.0 RAW (../shared/real; 521,252 events, 640 x 480)."""
+    return shared_file(PROPHESEE_EVT2_RAW)
+
+
+@pytest.fixture
+def night_path() -> Path:
+    """Prophesee EVK4 EVT 3.0 RAW (../shared/real; 1,218,618 events, 1280 x 720)."""
+    return shared_file(PROPHESEE_EVT3_RAW)
