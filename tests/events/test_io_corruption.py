@@ -129,3 +129,64 @@ def test_unreadable_file(tmp_path, make_recording):
     with pytest.raises(FormatError, match="copy.h5"):
         load(tmp_path / "copy.h5")
     assert isinstance(load(path), Recording)
+
+
+# --- Prophesee RAW (EVT 2.0 / 3.0) and DAT ------------------------------------------------------
+def _prophesee_files(tmp_path, rng):
+    from prophesee_codec import encode_dat, encode_evt2, encode_evt3, known_events
+    ev = known_events(rng, 2000, 320, 240, 1_000, 30_000_000)
+    head2, head3 = "% evt 2.0\n% geometry 320x240\n", "% evt 3.0\n% geometry 320x240\n"
+    dat = encode_dat(ev, 320, 240)
+    # (bytes, suffix, word size, first data byte)
+    return {"evt2": (encode_evt2(ev, head2), ".raw", 4, len(head2)),
+            "evt3": (encode_evt3(ev, head3), ".raw", 2, len(head3)),
+            "dat": (dat, ".dat", 8, dat.index(bytes([0x0C, 8])) + 2)}
+
+
+def _read_all(path):
+    from rdnet.events.io import open_events
+    load(path)
+    with open_events(path) as s:
+        for _ in s.chunks(500):
+            pass
+
+
+@pytest.mark.parametrize("enc", ["evt2", "evt3", "dat"])
+def test_truncated_prophesee_mid_word(tmp_path, enc):
+    data, suffix, wb, start = _prophesee_files(tmp_path, np.random.default_rng(4))[enc]
+    n_words = (len(data) - start) // wb
+    cuts = [start + k * wb + r for k in np.linspace(0, n_words - 1, 8).astype(int) for r in range(1, wb)]
+    path = tmp_path / f"bad{suffix}"
+    assert _outcomes(path, [data[:c] for c in cuts], _read_all) == len(cuts)
+    path.write_bytes(data[:cuts[0]])
+    with pytest.raises(FormatError, match="truncated"):
+        load(path)
+
+
+@pytest.mark.parametrize("enc", ["evt2", "evt3", "dat"])
+def test_garbage_words_and_flipped_header_prophesee(tmp_path, enc):
+    data, suffix, _, start = _prophesee_files(tmp_path, np.random.default_rng(5))[enc]
+    mid = start + (len(data) - start) // 2 // 8 * 8
+    garbage = data[:mid] + b"\x99" * 64 + data[mid + 64:]     # undefined word types / x out of range
+    if enc == "dat":
+        flipped = [data.replace(b"% Version 2", b"% Version 6", 1), data.replace(b"Width 320", b"Width 3?0", 1),
+                   data[:start - 2] + b"\x0e" + data[start - 1:]]          # event type: triggers, not CD
+    else:
+        flipped = [data.replace(b"% evt", b"% xvt", 1), data.replace(b"320x240", b"32?x240", 1),
+                   data.replace(b"320x240", b"320x24\xf0", 1)]
+    path = tmp_path / f"bad{suffix}"
+    assert _outcomes(path, [garbage] + flipped, _read_all) == 1 + len(flipped)
+    path.write_bytes(garbage)
+    with pytest.raises(FormatError, match="byte"):
+        load(path)
+
+
+def test_bit_flipped_prophesee_real_file(tmp_path, night_path):
+    """Random flips in a real EVT 3.0 file: a FormatError or a valid decode, nothing else
+    (a flipped bit inside a valid word can give another valid word); most are caught."""
+    data = night_path.read_bytes()[:200_000]
+    data = data[:len(data) - (len(data) - 225) % 2]
+    rng = np.random.default_rng(6)
+    variants = _flips(data, rng, 30, 40, lo=225)
+    errors = _outcomes(tmp_path / "bad.raw", variants, _read_all)
+    assert errors >= 15
