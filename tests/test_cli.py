@@ -47,7 +47,8 @@ def test_info_shows_extra_event_groups(capsys, tmp_path, make_recording, events_
     assert json.loads(out)["extra_event_groups"] == {"events_ideal": 77}
 
 
-@pytest.mark.parametrize("name", ["missing.h5", "bad.h5", "x.mp4", "bad.aedat4", "bad.txt"])
+@pytest.mark.parametrize("name", ["missing.h5", "bad.h5", "x.mp4", "bad.aedat4", "bad.txt", "bad.raw", "bad.dat",
+                                  "bad.npy"])
 def test_info_bad_input_exits_2_with_one_line(capsys, tmp_path, name):
     if name != "missing.h5":
         (tmp_path / name).write_bytes(b"\x00garbage\x01" * 10)
@@ -83,7 +84,7 @@ def test_convert_text_with_size_and_keep_extra_groups(capsys, tmp_path, ecd_path
     np.testing.assert_array_equal(read_events(tmp_path / "copy.h5", "events_ideal").array, ideal.array)
 
 
-@pytest.mark.parametrize("out_name", ["o.h5", "o.npz", "o.aedat4", "o.xyz"])
+@pytest.mark.parametrize("out_name", ["o.h5", "o.npz", "o.aedat4", "o.xyz", "o.npy", "o.raw"])
 def test_failing_convert_leaves_no_output(capsys, tmp_path, out_name):
     bad = tmp_path / "in.h5"
     bad.write_bytes(b"\x89HDF\r\n\x1a\n" + b"\x00" * 100)
@@ -102,3 +103,70 @@ def test_convert_onto_itself_is_refused(capsys, tmp_path, make_recording):
     save(path, make_recording(10))
     rc, _, err = _run(capsys, ["convert", str(path), str(path)])
     assert rc == 2 and "output is the input" in err
+
+
+# --- Prophesee RAW / DAT and .npy -----------------------------------------------------------------
+def test_info_prophesee_raw(capsys, night_path, sparklers_path):
+    rc, out, _ = _run(capsys, ["info", str(night_path), "--json"])
+    s = json.loads(out)
+    assert rc == 0 and (s["width"], s["height"], s["events"], s["frames"]) == (1280, 720, 1_218_618, 0)
+    assert round(s["on_fraction"], 2) == 0.45 and round(s["duration_s"], 2) == 10.77
+    ev = load(night_path).events
+    assert s["on_events"] == int(ev.p.sum()) and s["active_pixels"] == int(np.count_nonzero(ev.count_per_pixel()))
+    assert s["x_range"] == [int(ev.x.min()), int(ev.x.max())] and s["event_t_range_us"] == [int(ev.t[0]), int(ev.t[-1])]
+    rc, out, _ = _run(capsys, ["info", str(sparklers_path)])
+    assert rc == 0 and "(640 x 480)" in out and "521,252" in out
+
+
+def test_info_streams_the_same_summary_as_a_whole_load(capsys, tmp_path, make_recording, monkeypatch):
+    from rdnet.cli import info
+    rec = make_recording(5000, 3)
+    path = tmp_path / "r.h5"
+    save(path, rec)
+    calls = []
+    chunks = info.stream_summary
+
+    def small_chunks(stream, max_events=1_000_000):
+        calls.append(1)
+        return chunks(stream, 700)
+    monkeypatch.setattr(info, "stream_summary", small_chunks)
+    rc, out, _ = _run(capsys, ["info", str(path), "--json"])
+    s = json.loads(out)
+    del s["file"]
+    expected = {k: (None if isinstance(v, float) and np.isnan(v) else v) for k, v in load(path).summary().items()}
+    assert rc == 0 and calls and s == expected
+
+
+def test_convert_prophesee_to_npy_and_h5(capsys, tmp_path, night_path):
+    ref = load(night_path).events
+    npy, h5 = tmp_path / "n.npy", tmp_path / "n.h5"
+    rc, out, _ = _run(capsys, ["convert", str(night_path), str(npy)])
+    assert rc == 0 and "1,218,618 events, 0 frames, 1280 x 720" in out
+    a = np.load(npy)
+    assert a.dtype.names == ("x", "y", "t", "p") and a["t"].dtype == np.int64
+    for k in "txyp":
+        np.testing.assert_array_equal(a[k], ref.array[k])
+    assert _run(capsys, ["convert", str(night_path), str(h5)])[0] == 0
+    np.testing.assert_array_equal(read_events(h5).array, ref.array)
+    back = tmp_path / "back.h5"
+    assert _run(capsys, ["convert", str(npy), str(back), "--width", "1280", "--height", "720"])[0] == 0
+    np.testing.assert_array_equal(read_events(back).array, ref.array)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["back.h5", "n.h5", "n.npy"]
+
+
+@pytest.mark.parametrize("out_name", ["o.npy", "o.h5", "o.npz"])
+def test_convert_corrupt_prophesee_exits_2_without_output(capsys, tmp_path, night_path, out_name):
+    data = night_path.read_bytes()
+    bad = tmp_path / "bad.raw"
+    bad.write_bytes(data[:-1])                          # the last 16-bit word cut in half
+    rc, out, err = _run(capsys, ["convert", str(bad), str(tmp_path / out_name)])
+    assert rc == 2 and out == "" and len(err.strip().splitlines()) == 1
+    assert "bad.raw" in err and "truncated" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.raw"]
+
+
+def test_calibrate_prophesee_says_frames_are_needed(capsys, tmp_path, night_path):
+    rc, out, err = _run(capsys, ["calibrate", str(night_path), "--out", str(tmp_path / "cal")])
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1 and str(night_path) in lines[0] and "frames" in lines[0]
+    assert not (tmp_path / "cal").exists()
