@@ -45,7 +45,7 @@ def test_chunks_equal_whole_load(night_path):
     whole = load(night_path).events.array
     with ProphReader(night_path, decode_events=300_000, block_bytes=1 << 16) as r:
         parts = list(r.chunks(250_000))
-    assert [len(c) for c in parts[:-1]] == [250_000] * (len(parts) - 1)
+    assert max(len(c) for c in parts) == 250_000 and min(len(c) for c in parts) > 0
     _same(np.concatenate([c.array for c in parts]), whole)
     with open_events(night_path) as s:
         assert (s.format, s.width, s.height, s.has_frames, s.frames()) == ("prophesee_raw", 1280, 720, False, None)

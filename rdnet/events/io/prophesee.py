@@ -347,8 +347,8 @@ class ProphReader:
     """Streaming decoder of one Prophesee file (a context manager).
 
     :meth:`units` yields the decoded events unit by unit (at most :data:`DECODE_EVENTS`
-    each, time-sorted, sorted across units); :meth:`chunks` re-cuts them to a requested
-    size. Memory stays at one byte block plus one unit whatever the file size."""
+    each, time-sorted, sorted across units); :meth:`chunks` cuts them to at most a
+    requested size. Memory stays at one byte block plus one unit whatever the file size."""
 
     def __init__(self, path: str | Path, *, sensor_size: tuple[int, int] | None = None,
                  block_bytes: int = BLOCK_BYTES, decode_events: int = DECODE_EVENTS):
@@ -380,7 +380,7 @@ class ProphReader:
         wb = h.word_bytes
         state = np.zeros(8, np.int64)
         counts = np.zeros(2, np.int64)
-        cols = self._new_columns()
+        unit = self._new_unit()
         fill = 0
         last_t = None
         consumed = 0           # bytes of data decoded before the current block
@@ -398,17 +398,17 @@ class ProphReader:
                 n_items = len(raw) // wb
                 i = 0
                 while i < n_items:
-                    i, fill, err, err_i, err_v = kernel(words, i, state, *cols, fill, self.width, self.height,
-                                                        counts)
+                    i, fill, err, err_i, err_v = kernel(words, i, state, unit["t"], unit["x"], unit["y"],
+                                                        unit["p"], fill, self.width, self.height, counts)
                     if err:
                         raise self._error(err, h.data_offset + consumed + err_i * wb, err_v)
                     if i < n_items:        # unit full
-                        out, last_t = self._finish(cols, fill, last_t)
+                        out, last_t = self._finish(unit, fill, last_t)
                         yield out
-                        cols, fill = self._new_columns(), 0
+                        unit, fill = self._new_unit(), 0
                 consumed += len(raw)
         if fill:
-            out, last_t = self._finish(cols, fill, last_t)
+            out, last_t = self._finish(unit, fill, last_t)
             yield out
         self.vendor_words, self.skipped_events = int(counts[0]), int(counts[1])
         log.debug("%s: skipped %d vendor words (triggers, others, continued) and %d events before the "
@@ -417,14 +417,12 @@ class ProphReader:
             log.warning("%s: %d events earlier than the previous decode unit were clamped to its last time",
                         self.path, self.clamped_events)
 
-    def _new_columns(self):
-        n = self._unit
-        return (np.empty(n, np.int64), np.empty(n, np.uint16), np.empty(n, np.uint16), np.empty(n, np.uint8))
+    def _new_unit(self) -> np.ndarray:
+        # a fresh buffer per unit: the Events handed out are views of it, never overwritten
+        return np.empty(self._unit, EVENT_DTYPE)
 
-    def _finish(self, cols, fill: int, last_t):
-        arr = np.empty(fill, EVENT_DTYPE)
-        for k, c in zip("txyp", cols):
-            arr[k] = c[:fill]
+    def _finish(self, unit: np.ndarray, fill: int, last_t):
+        arr = unit[:fill]
         t = arr["t"]
         if fill > 1 and np.any(t[1:] < t[:-1]):
             arr = arr[np.argsort(t, kind="stable")]
@@ -438,32 +436,18 @@ class ProphReader:
         return Events(arr, self.width, self.height, validate=False), last_t
 
     def chunks(self, max_events: int = 1_000_000) -> Iterator[Events]:
-        """Time-sorted chunks of exactly ``max_events`` events (the last one fewer)."""
+        """Time-sorted chunks of at most ``max_events`` events: the decode units cut to size
+        (views, no copy; a unit's last piece may be shorter)."""
         if max_events <= 0:
             raise ValidationError("max_events", f"must be > 0, got {max_events}")
-        pending: list[np.ndarray] = []
-        n_pending = 0
         for unit in self.units():
-            a = unit.array
-            while a.size:
-                take = min(a.size, max_events - n_pending)
-                pending.append(a[:take])
-                n_pending += take
-                a = a[take:]
-                if n_pending == max_events:
-                    yield self._events(pending)
-                    pending, n_pending = [], 0
-        if n_pending:
-            yield self._events(pending)
-
-    def _events(self, parts: list[np.ndarray]) -> Events:
-        arr = parts[0].copy() if len(parts) == 1 else np.concatenate(parts)
-        return Events(arr, self.width, self.height, validate=False)
+            for i in range(0, len(unit), max_events):
+                yield unit[i:i + max_events]
 
     def read(self) -> Events:
         """The whole file as one :class:`Events` (for files that fit in memory)."""
         parts = [u.array for u in self.units()]
-        arr = np.concatenate(parts) if parts else np.empty(0, EVENT_DTYPE)
+        arr = (parts[0] if len(parts) == 1 else np.concatenate(parts)) if parts else np.empty(0, EVENT_DTYPE)
         return Events(arr, self.width, self.height, validate=False)
 
 
