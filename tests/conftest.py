@@ -17,6 +17,7 @@ SHARED_REAL = ROOT.parent / "shared" / "real"
 ECD_SHAPES_TXT = SHARED_REAL / "ecd_shapes_subset" / "events.txt"
 PROPHESEE_EVT2_RAW = SHARED_REAL / "prophesee_gen3_sparklers" / "sparklers.raw"
 PROPHESEE_EVT3_RAW = SHARED_REAL / "prophesee_evk4_night" / "night.raw"
+DVXPLORER_AEDAT4 = SHARED_REAL / "dvxplorer_person" / "dvxplorer.aedat4"
 
 
 @pytest.fixture
@@ -118,3 +119,9 @@ def sparklers_path() -> Path:
 def night_path() -> Path:
     """Prophesee EVK4 EVT 3.0 RAW (../shared/real; 1,218,618 events, 1280 x 720)."""
     return shared_file(PROPHESEE_EVT3_RAW)
+
+
+@pytest.fixture
+def dvxplorer_path() -> Path:
+    """iniVation DVXplorer AEDAT 4 without frames (../shared/real; 111,954 events, 320 x 240)."""
+    return shared_file(DVXPLORER_AEDAT4)

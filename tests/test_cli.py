@@ -165,8 +165,17 @@ def test_convert_corrupt_prophesee_exits_2_without_output(capsys, tmp_path, nigh
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.raw"]
 
 
-def test_calibrate_prophesee_says_frames_are_needed(capsys, tmp_path, night_path):
-    rc, out, err = _run(capsys, ["calibrate", str(night_path), "--out", str(tmp_path / "cal")])
+@pytest.mark.parametrize("name", ["night_path", "dvxplorer_path"])
+def test_calibrate_events_only_says_frames_are_needed(capsys, tmp_path, request, name):
+    path = request.getfixturevalue(name)
+    rc, out, err = _run(capsys, ["calibrate", str(path), "--out", str(tmp_path / "cal")])
     lines = err.strip().splitlines()
-    assert rc == 2 and len(lines) == 1 and str(night_path) in lines[0] and "frames" in lines[0]
+    assert rc == 2 and len(lines) == 1 and str(path) in lines[0] and "no frames" in lines[0]
     assert not (tmp_path / "cal").exists()
+
+
+def test_info_dvxplorer_aedat4_without_frames(capsys, dvxplorer_path):
+    rc, out, _ = _run(capsys, ["info", str(dvxplorer_path), "--json"])
+    s = json.loads(out)
+    assert rc == 0 and (s["width"], s["height"], s["events"], s["frames"]) == (320, 240, 111_954, 0)
+    assert round(s["on_fraction"], 3) == 0.491 and "frame_rate_hz" not in s
