@@ -126,9 +126,9 @@ def test_info_streams_the_same_summary_as_a_whole_load(capsys, tmp_path, make_re
     calls = []
     chunks = info.stream_summary
 
-    def small_chunks(stream, max_events=1_000_000):
+    def small_chunks(stream, max_events=1_000_000, progress=False):
         calls.append(1)
-        return chunks(stream, 700)
+        return chunks(stream, 700, progress)
     monkeypatch.setattr(info, "stream_summary", small_chunks)
     rc, out, _ = _run(capsys, ["info", str(path), "--json"])
     s = json.loads(out)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rdnet.cli.info import add_sensor_size_args, sensor_size_of
+from rdnet.cli.info import add_progress_arg, add_sensor_size_args, progress_chunks, sensor_size_of
 
 _STREAMED_IN = ("prophesee_raw", "prophesee_dat", "hdf5")
 
@@ -22,6 +22,7 @@ def register(subparsers) -> None:
     p.add_argument("input", type=Path, help="input recording (.h5, .hdf5, .aedat4, .raw, .dat, .txt, .npz, .npy)")
     p.add_argument("output", type=Path, help="output recording (.h5, .hdf5, .txt, .npz, .npy)")
     add_sensor_size_args(p)
+    add_progress_arg(p)
     p.set_defaults(func=run)
 
 
@@ -34,11 +35,11 @@ def _streamed(args, out_fmt: str) -> tuple[int, int, int, int]:
         if out_fmt == "npy":
             if s.has_frames:
                 logging.getLogger(__name__).warning("%s: frames not written (.npy holds events only)", args.output)
-            return write_npy_chunks(args.output, s.chunks()), 0, s.width, s.height
+            return write_npy_chunks(args.output, progress_chunks(s, args.progress)), 0, s.width, s.height
         n = n_fr = 0
         with H5RecordingWriter(args.output, s.width, s.height, s.sensor) as w:
             if s.has_events:
-                for ch in s.chunks():
+                for ch in progress_chunks(s, args.progress):
                     w.append_events(ch)
                     n += len(ch)
             if s.has_frames:

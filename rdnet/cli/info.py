@@ -10,6 +10,21 @@ from pathlib import Path
 from rdnet.errors import ConfigError
 
 
+def add_progress_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--no-progress", dest="progress", action="store_false",
+                   help="no progress bar (shown only on a terminal anyway)")
+
+
+def progress_chunks(stream, progress: bool = True, max_events: int = 1_000_000):
+    """``stream.chunks(max_events)`` with a tqdm bar counting events (on a terminal)."""
+    from tqdm import tqdm
+    with tqdm(total=stream.n_events, unit="ev", unit_scale=True, desc=stream.path.name,
+              disable=None if progress else True, leave=False) as bar:
+        for ch in stream.chunks(max_events):
+            bar.update(len(ch))
+            yield ch
+
+
 def add_sensor_size_args(p: argparse.ArgumentParser) -> None:
     """``--width``/``--height``: sensor size for formats that do not store it (text)."""
     p.add_argument("--width", type=int, default=None, help="sensor width (text files without a size header)")
@@ -33,6 +48,7 @@ def register(subparsers) -> None:
     p.add_argument("recording", type=Path, help="recording file")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_sensor_size_args(p)
+    add_progress_arg(p)
     p.set_defaults(func=run)
 
 
@@ -79,7 +95,7 @@ def format_summary(path: Path, s: dict) -> str:
     return "\n".join(lines)
 
 
-def stream_summary(stream, max_events: int = 1_000_000) -> dict:
+def stream_summary(stream, max_events: int = 1_000_000, progress: bool = False) -> dict:
     """The ``Recording.summary()`` dict of an open :class:`~rdnet.events.io.EventStream`,
     accumulated chunk by chunk (counts, ON/OFF, time and coordinate ranges, an active-pixel
     bitmap), so a multi-GB Prophesee file is never in memory at once."""
@@ -93,7 +109,7 @@ def stream_summary(stream, max_events: int = 1_000_000) -> dict:
     x_lo = y_lo = 1 << 30
     x_hi = y_hi = -1
     active = np.zeros(w * h, bool)
-    for ch in stream.chunks(max_events):
+    for ch in progress_chunks(stream, progress, max_events):
         if not len(ch):
             continue
         n += len(ch)
@@ -126,7 +142,7 @@ def stream_summary(stream, max_events: int = 1_000_000) -> dict:
 def run(args) -> int:
     from rdnet.events.io import open_events
     with open_events(args.recording, sensor_size=sensor_size_of(args)) as stream:
-        s = stream_summary(stream)
+        s = stream_summary(stream, progress=args.progress)
     extra = _extra_groups(args.recording)
     if extra:
         s["extra_event_groups"] = extra

@@ -33,7 +33,8 @@ class EventStream:
     """Events of one recording, read chunk by chunk (a context manager).
 
     Attributes: ``path``, ``format`` (the name :func:`~rdnet.events.io.format_of` gives),
-    ``width``, ``height``, ``sensor``, ``has_events``, ``has_frames``."""
+    ``width``, ``height``, ``sensor``, ``has_events``, ``has_frames`` and ``n_events``
+    (None where it is only known after decoding the whole file: RAW, DAT)."""
 
     path: Path
     format: str
@@ -42,6 +43,7 @@ class EventStream:
     sensor: str = ""
     has_events: bool = True
     has_frames: bool = False
+    n_events: int | None = None
 
     def __enter__(self) -> "EventStream":
         return self
@@ -117,6 +119,7 @@ class _H5Stream(EventStream):
         if not (self.has_events or self.has_frames):
             raise FormatError(path, "events", "recording has neither /events nor /frames")
         self._reader = H5EventReader(path, "events") if self.has_events else None
+        self.n_events = len(self._reader) if self._reader is not None else 0
 
     def close(self) -> None:
         if self._reader is not None:
@@ -145,6 +148,7 @@ class _MemoryStream(EventStream):
         self.width, self.height, self.sensor = self._rec.width, self._rec.height, self._rec.sensor
         self.has_events = self._rec.events is not None
         self.has_frames = self._rec.frames is not None
+        self.n_events = 0 if self._rec.events is None else len(self._rec.events)
 
     def frames(self) -> Frames | None:
         return self._rec.frames
