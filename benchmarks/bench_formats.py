@@ -181,7 +181,7 @@ def _streaming(gb: float, repeats: int) -> dict:
         big, copies = _big_file(Path(work), gb)
         out = {"file": {"bytes": big.stat().st_size, "copies_of_night_raw": copies,
                         "events": copies * FILES["night_evt3"][1]["events"]}}
-        for rep in range(repeats):             # interleaved, best wall time kept (shared machine)
+        for _ in range(repeats):             # interleaved, best wall time kept (shared machine)
             for name in ("rdnet", "faery", "expelliarmus"):
                 r = _in_child("stream", name, big)
                 print("stream", name, r, flush=True)
@@ -222,12 +222,14 @@ def main() -> None:
             n = len(tt)
             same = n == len(ref[key]["t"]) and all(
                 np.array_equal(np.asarray(cols[k]).astype(np.int64), ref[key][k].astype(np.int64)) for k in "txyp")
+            on = float(np.mean(cols["p"]))
+            dur_s = (int(tt[-1]) - int(tt[0])) * 1e-6
             row["files"][key] = {
-                "events": n, "on_fraction": round(float(np.mean(cols["p"])), 4),
-                "duration_s": round((int(tt[-1]) - int(tt[0])) * 1e-6, 4), "size_reported": size,
+                "events": n, "on_fraction": round(on, 4),
+                "duration_s": round(dur_s, 4), "size_reported": size,
                 "time_sorted": bool(np.all(np.diff(tt) >= 0)), "equal_to_rdnet": bool(same),
-                "matches_readme": bool(n == readme["events"] and round(float(np.mean(cols["p"])), 2) == readme["on_fraction"]
-                                       and abs((int(tt[-1]) - int(tt[0])) * 1e-6 - readme["duration_s"]) < 0.01),
+                "matches_readme": bool(n == readme["events"] and round(on, 2) == readme["on_fraction"]
+                                       and abs(dur_s - readme["duration_s"]) < 0.01),
                 "best_s": round(best, 4), "mev_per_s": round(n / best / 1e6, 1)}
             print(name, key, row["files"][key], flush=True)
         rows.append(row)

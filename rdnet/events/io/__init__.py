@@ -19,7 +19,8 @@ from rdnet.events.io.prophesee import ProphReader, read_prophesee
 from rdnet.events.io.stream import EventStream, open_events
 from rdnet.events.io.text import read_text, read_text_events, read_text_frames, write_text
 
-__all__ = ["EventStream", "FORMATS", "NPY_DTYPE", "ProphReader", "open_events", "read_npy", "read_prophesee",
-           "write_npy", "write_npy_chunks", "H5EventReader", "H5RecordingWriter", "event_groups", "format_of", "load", "read_aedat4",
-           "read_events", "read_frames", "read_header", "read_npz", "read_recording", "read_text", "read_text_events",
-           "read_text_frames", "save", "write_npz", "write_recording", "write_text"]
+__all__ = ["FORMATS", "NPY_DTYPE", "EventStream", "H5EventReader", "H5RecordingWriter", "ProphReader",
+           "event_groups", "format_of", "load", "open_events", "read_aedat4", "read_events", "read_frames",
+           "read_header", "read_npy", "read_npz", "read_prophesee", "read_recording", "read_text",
+           "read_text_events", "read_text_frames", "save", "write_npy", "write_npy_chunks", "write_npz",
+           "write_recording", "write_text"]
