@@ -191,3 +191,24 @@ def test_empty_data_is_zero_events(tmp_path):
     with open_events(path) as s:
         assert list(s.chunks()) == [] and len(s.slice_time(0, 10)) == 0
     assert isinstance(load(path).events, Events) and len(load(path).events) == 0
+
+
+def test_out_of_order_words_are_sorted_in_a_unit_and_clamped_across_units(tmp_path):
+    """EVT 2.0 events within one time-high period may come out of order: sorted within a
+    decode unit (stable); one earlier than the previous unit's last event is clamped."""
+    def cd(low, x, p=1):
+        return (p << 28) | (low << 22) | (x << 11) | 3
+    words = [(0x8 << 28) | 1, cd(10, 0), cd(5, 1), cd(7, 2), cd(7, 3), cd(2, 4), cd(9, 5)]
+    path = tmp_path / "a.raw"
+    path.write_bytes(EVT2_HEAD.encode() + np.array(words, "<u4").tobytes())
+    with ProphReader(path) as r:
+        ev = r.read()
+    assert ev.t.tolist() == [66, 69, 71, 71, 73, 74] and ev.x.tolist() == [4, 1, 2, 3, 5, 0]
+    with ProphReader(path, decode_events=64) as r:          # units of 64 events: all in one unit
+        assert r.read().t.tolist() == ev.t.tolist()
+    words = [(0x8 << 28) | 1] + [cd(10, i) for i in range(64)] + [cd(3, 70), cd(12, 71)]
+    path.write_bytes(EVT2_HEAD.encode() + np.array(words, "<u4").tobytes())
+    with ProphReader(path, decode_events=64) as r:
+        ev = r.read()
+        assert r.clamped_events == 1
+    assert ev.t.tolist()[-3:] == [74, 74, 76] and ev.x.tolist()[-2:] == [70, 71]
