@@ -5,7 +5,7 @@ from rdnet.baselines import StcfState, baf_filter, baf_mask, baf_state, stcf_mas
 from rdnet.errors import ValidationError
 from rdnet.events import Events, concatenate
 
-from tests.baselines.test_baseline_stcf import edge_plus_noise
+from test_baseline_stcf import edge_plus_noise
 
 
 def _ev(t, x, y, p=None, W=30, H=20):
