@@ -15,6 +15,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from rdnet.cli.common import add_params_args, load_cli_params
+from rdnet.cli.info import add_sensor_size_args, sensor_size_of
 
 METHOD_CHOICES = ("rdnet", "baf", "stcf", "gef", "raw")
 
@@ -28,6 +29,7 @@ def register(subparsers) -> None:
                    help="restorer (default: restore.method of params.yaml, rdnet)")
     p.add_argument("--checkpoint", type=Path, default=None,
                    help="learned restorer checkpoint (method rdnet; default: the study's, else the packaged one)")
+    add_sensor_size_args(p)
     add_params_args(p)
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
@@ -38,7 +40,8 @@ def run(args) -> int:
 
     params = load_cli_params(args)
     res = restore_recording(args.recording, args.out, params, method=args.method,
-                            checkpoint=args.checkpoint, progress=args.progress)
+                            checkpoint=args.checkpoint, progress=args.progress,
+                            sensor_size=sensor_size_of(args))
     kept = res["kept_fraction"]
     print(f"{res['method']}: {res['events_in']} -> {res['events_out']} events "
           f"({'n/a' if kept is None else f'{100 * kept:.1f} %'} kept); "

@@ -137,11 +137,11 @@ def mask_fractions(raw: Events, kept: Events, masks: Mapping[str, np.ndarray]) -
 def activity_mask(events: Events, sigma_px: float = 4.0, rel_threshold: float = 0.25,
                   quantile: float = 0.999) -> np.ndarray:
     """(H, W) bool mask of where the scene moves, from the events themselves: the event
-    count per pixel, Gaussian-smoothed with ``sigma_px`` (so that a lone hot pixel is
-    spread thin while an extended moving object stays dense), thresholded at
-    ``rel_threshold`` times its ``quantile`` (a robust maximum)."""
+    count per pixel, 3 x 3 median-filtered (a lone hot pixel disappears: its neighbours
+    are quiet), Gaussian-smoothed with ``sigma_px`` (an extended moving object stays
+    dense), thresholded at ``rel_threshold`` times its ``quantile`` (a robust maximum)."""
     from scipy.ndimage import gaussian_filter
-    counts = events.count_per_pixel().astype(np.float64)
+    counts = _median3(events.count_per_pixel().astype(np.float64))
     s = gaussian_filter(counts, sigma_px, mode="constant")
     top = float(np.quantile(s, quantile)) if s.size else 0.0
     return s >= rel_threshold * top if top > 0 else np.zeros_like(s, bool)

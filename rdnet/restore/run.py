@@ -66,8 +66,10 @@ def _jsonable(obj):
 
 
 def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *, method: str | None = None,
-                      checkpoint: str | Path | None = None, progress: bool = True) -> dict:
-    """Run ``rdnet restore`` (module docstring); returns the OUT.json content."""
+                      checkpoint: str | Path | None = None, progress: bool = True,
+                      sensor_size: tuple[int, int] | None = None) -> dict:
+    """Run ``rdnet restore`` (module docstring); returns the OUT.json content.
+    ``sensor_size`` (width, height): for formats that do not store it (text)."""
     from tqdm import tqdm
 
     from rdnet.events.io._common import atomic_output
@@ -81,7 +83,7 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
         raise FormatError(out, None, "output must be an HDF5 file (.h5)")
     if out.resolve() == recording.resolve():
         raise FormatError(out, None, "output would overwrite the input recording")
-    with _open(recording) as src:
+    with _open(recording, sensor_size) as src:
         frames = src.frames()
         has_frames = frames is not None and len(frames) > 0
         restorer = get_restorer(method, params, checkpoint, has_frames=has_frames)

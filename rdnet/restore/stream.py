@@ -22,10 +22,10 @@ class _LoadedSource:
     """The interface of ``rdnet.events.io.stream.open_events`` over a fully loaded
     recording (``.width .height .format .has_frames .frames() .chunks(max_events)``)."""
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, sensor_size: tuple[int, int] | None = None):
         from rdnet.events.io import format_of, load
         self.format = format_of(path)
-        rec = load(path)
+        rec = load(path, sensor_size=sensor_size)
         self.width, self.height = rec.width, rec.height
         self.sensor = rec.sensor
         self._events = rec.events if rec.events is not None else Events.empty(rec.width, rec.height)
@@ -47,12 +47,13 @@ class _LoadedSource:
             yield self._events[i:i + int(max_events)]
 
 
-def _open(path: str | Path):
+def _open(path: str | Path, sensor_size: tuple[int, int] | None = None):
     """Open ``path`` for streaming (a context manager with ``width``, ``height``,
-    ``format``, ``has_frames``, ``frames()`` and ``chunks(max_events)``)."""
+    ``format``, ``has_frames``, ``frames()`` and ``chunks(max_events)``); ``sensor_size``
+    (width, height) for formats that do not store it."""
     # TODO(lead): switch to open_events after merge:
-    #   from rdnet.events.io.stream import open_events; return open_events(path, sensor_size=None)
-    return _LoadedSource(Path(path))
+    #   from rdnet.events.io.stream import open_events; return open_events(path, sensor_size=sensor_size)
+    return _LoadedSource(Path(path), sensor_size)
 
 
 def windows(chunks: Iterator[Events], window_us: int, *, path: str | Path = "recording"
