@@ -43,8 +43,18 @@ def run(args) -> int:
                             checkpoint=args.checkpoint, progress=args.progress,
                             sensor_size=sensor_size_of(args))
     kept = res["kept_fraction"]
-    print(f"{res['method']}: {res['events_in']} -> {res['events_out']} events "
-          f"({'n/a' if kept is None else f'{100 * kept:.1f} %'} kept); "
-          f"ESR raw {res['scores']['esr']['raw']}, restored {res['scores']['esr']['restored']}")
+    esr = res["scores"]["esr"]
+
+    def fmt(v):
+        return "n/a" if v is None else f"{v:.3f}"
+    line = (f"{res['method']}: {res['events_in']} -> {res['events_out']} events "
+            f"({'n/a' if kept is None else f'{100 * kept:.1f} %'} kept)")
+    if esr is not None:
+        line += f"; ESR (higher = more structure) raw {fmt(esr['raw'])}, restored {fmt(esr['restored'])}"
+    cons = res["scores"]["consistency"]
+    if cons:
+        line += (f"; event-frame consistency R^2 raw {fmt(cons['raw']['r2_fitted'])}, "
+                 f"restored {fmt(cons['restored']['r2_fitted'])}")
+    print(line)
     print(f"wrote {args.out} and {json_path_for(args.out)}")
     return 0

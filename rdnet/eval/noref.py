@@ -45,10 +45,19 @@ def esr_packet(counts: np.ndarray, n_events: int) -> float:
     """ESR of one packet from its (H, W) count image and event number (module docstring)."""
     if n_events < 2:
         return float("nan")
-    n = _median3(np.asarray(counts, np.float64))
-    K = n.size
+    c = np.asarray(counts, np.float64)
+    K = c.size
+    rows, cols = np.flatnonzero(c.any(1)), np.flatnonzero(c.any(0))
+    if rows.size == 0:
+        return float("nan")
+    # the median is 0 farther than one pixel from any event: filter only that box
+    r0, r1 = max(rows[0] - 1, 0), min(rows[-1] + 2, c.shape[0])
+    c0, c1 = max(cols[0] - 1, 0), min(cols[-1] + 2, c.shape[1])
+    pad = np.pad(c[r0:r1, c0:c1], 1)
+    n = _median3(pad)[1:-1, 1:-1]
     ntss = float((n * n).sum()) / float(n_events) ** 2
-    cover = (K - float(np.power(0.5, n).sum())) / K
+    miss = float(np.power(0.5, n).sum()) + (K - n.size)        # 0.5^0 = 1 outside the box
+    cover = (K - miss) / K
     return 1000.0 * float(np.sqrt(ntss * cover))
 
 

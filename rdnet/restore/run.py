@@ -93,10 +93,11 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
         grey = frames.grey() if has_frames else None
         esr_raw = EsrAccumulator(src.width, src.height, cfg.esr_interval_us)
         esr_out = EsrAccumulator(src.width, src.height, cfg.esr_interval_us)
-        keep_streams = has_frames
+        keep_streams = has_frames and cfg.scores
         raw_parts: list[Events] = []
         out_parts: list[Events] = []
-        n_in = n_out = n_win = 0
+        n_in = n_out = n_win = n_pending = 0
+        pending: list[Events] = []
         t_first = t_last = None
         total = getattr(src, "n_events", None)
         start = time.perf_counter()
@@ -107,9 +108,14 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
             for t0, t1, ev in windows(src.chunks(cfg.chunk_events), window_us, path=recording):
                 frame = nearest_frame(frames, (t0 + t1) // 2, grey) if has_frames else None
                 res = restorer.restore(ev, t0, t1, frame)
-                writer.append_events(res)
-                esr_raw.add(ev)
-                esr_out.add(res)
+                pending.append(res)
+                n_pending += len(res)
+                if n_pending >= cfg.chunk_events:          # few large HDF5 appends, memory bounded
+                    writer.append_events(concatenate(pending))
+                    pending, n_pending = [], 0
+                if cfg.scores:
+                    esr_raw.add(ev)
+                    esr_out.add(res)
                 if keep_streams:
                     if n_in + len(ev) > cfg.score_max_events:
                         keep_streams = False
@@ -124,20 +130,23 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                 n_out += len(res)
                 n_win += 1
                 bar.update(len(ev))
+            if pending:
+                writer.append_events(concatenate(pending))
             if has_frames:
                 writer.write_frames(frames)
             seconds = time.perf_counter() - start
             writer.set_attr("restore_method", restorer.name)
             duration = (t_last - t_first) if t_first is not None else 0
             scores = {"esr": {"raw": esr_raw.score(), "restored": esr_out.score(),
-                              "interval_us": cfg.esr_interval_us}, "consistency": None}
-            notes = []
+                              "interval_us": cfg.esr_interval_us} if cfg.scores else None,
+                      "consistency": None}
+            notes = [] if cfg.scores else ["no-reference scores off (restore.scores=false)"]
             if has_frames and keep_streams:
                 from rdnet.eval.noref import frame_consistency
                 raw_all = concatenate(raw_parts)
                 scores["consistency"] = frame_consistency(frames, {"raw": raw_all, "restored": concatenate(out_parts)},
                                                           section(params, "sensor"), raw_all)
-            elif has_frames:
+            elif has_frames and cfg.scores:
                 notes.append(f"event-frame consistency not scored: more than {cfg.score_max_events} raw events")
             result = {
                 "input": str(recording), "output": str(out), "format": src.format,

@@ -20,7 +20,8 @@ class RestoreConfig:
     ``stcf_tau_us``/``stcf_k``/``stcf_radius``/``stcf_same_polarity``; ``gef_radius``/
     ``gef_eps`` and ``gef_bins`` (time bins of the window voxel grid GEF filters).
     ``device``/``batch_size``: for the learned restorer. ``esr_interval_us``: packet length
-    of the ESR no-reference score (E-MLB uses 33 ms); ``score_max_events``: event-frame
+    of the ESR no-reference score (E-MLB uses 33 ms); ``scores``: compute the no-reference
+    scores at all (false: faster, OUT.json has counts only); ``score_max_events``: event-frame
     consistency is scored only when the raw stream has at most this many events (it holds
     both streams in memory)."""
 
@@ -38,6 +39,7 @@ class RestoreConfig:
     device: Literal["cpu", "cuda", "auto"] = "auto"
     batch_size: int = 8
     esr_interval_us: int = 33_000
+    scores: bool = True
     score_max_events: int = 20_000_000
 
     def __post_init__(self):

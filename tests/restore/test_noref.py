@@ -62,3 +62,18 @@ def test_mask_fractions_and_activity_mask():
     ev = _events(np.r_[bx, np.full(300, 55)], np.r_[by, np.full(300, 40)], np.arange(4300), 64, 48)
     am = activity_mask(ev, sigma_px=3, rel_threshold=0.25)
     assert am[15, 35] and not am[40, 55]
+
+
+def test_esr_box_shortcut_equals_full_median():
+    from scipy.ndimage import median_filter
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        c = np.zeros((30, 40))
+        h, w = rng.integers(1, 30), rng.integers(1, 40)
+        y, x = rng.integers(0, 31 - h), rng.integers(0, 41 - w)
+        c[y:y + h, x:x + w] = rng.integers(0, 4, (h, w)) * (rng.random((h, w)) < 0.5)
+        N = int(c.sum()) + 2
+        n = median_filter(c, size=3, mode="constant", cval=0)
+        ref = 1000 * np.sqrt((n * n).sum() / N ** 2 * (c.size - np.power(0.5, n).sum()) / c.size)
+        got = esr_packet(c, N)
+        assert (c.sum() == 0 and np.isnan(got)) or got == pytest.approx(ref, rel=1e-12)
