@@ -8,7 +8,8 @@ the recording has them) and OUT.json beside it (OUT with suffix ``.json``):
   (what the restorer reports about itself: filter parameters, or the checkpoint path,
   kind, training config and metrics of a learned one),
 * ``events_in``, ``events_out``, ``kept_fraction``, ``windows``, ``window_us``,
-  ``seconds`` (wall time), ``events_per_s`` (input events per second of wall time),
+  ``seconds`` (wall time of the restore loop, after reading), ``cpu_seconds`` (its CPU
+  time), ``events_per_s`` (input events per second of wall time),
   ``realtime_factor`` (recording duration / wall time),
 * ``scores``: no-reference scores of the raw and the restored stream: ``esr``
   (:func:`rdnet.eval.noref.esr_score`, higher = more structured) and, with frames,
@@ -100,7 +101,7 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
         pending: list[Events] = []
         t_first = t_last = None
         total = getattr(src, "n_events", None)
-        start = time.perf_counter()
+        start, cpu_start = time.perf_counter(), time.process_time()
         with atomic_output(json_path_for(out)) as json_tmp, \
                 H5RecordingWriter(out, src.width, src.height, getattr(src, "sensor", "") or "") as writer, \
                 tqdm(total=total, desc=f"restore {restorer.name}", unit="ev", unit_scale=True,
@@ -134,7 +135,7 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                 writer.append_events(concatenate(pending))
             if has_frames:
                 writer.write_frames(frames)
-            seconds = time.perf_counter() - start
+            seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
             writer.set_attr("restore_method", restorer.name)
             duration = (t_last - t_first) if t_first is not None else 0
             scores = {"esr": {"raw": esr_raw.score(), "restored": esr_out.score(),
@@ -156,7 +157,7 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                 "events_in": n_in, "events_out": n_out,
                 "kept_fraction": n_out / n_in if n_in else None,
                 "windows": n_win, "window_us": window_us, "duration_us": duration,
-                "seconds": seconds, "events_per_s": n_in / seconds if seconds > 0 else None,
+                "seconds": seconds, "cpu_seconds": cpu_seconds, "events_per_s": n_in / seconds if seconds > 0 else None,
                 "realtime_factor": (duration * 1e-6) / seconds if seconds > 0 else None,
                 "scores": scores, "notes": notes, "settings": {**to_dict(cfg), "method": method}}
             result = _jsonable(result)
