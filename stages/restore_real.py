@@ -86,8 +86,6 @@ def score_recording(name, path, params, data_out, log):
 
 
 def figure(path, name, raw, outs, act):
-    import numpy as np
-
     from rdnet.eval.report import _figure, _save_figure, event_image
     from rdnet.eval.events import polarity_counts
     t_mid = int(raw.t[len(raw) // 2])
