@@ -40,7 +40,7 @@ class RestoreConfig:
     batch_size: int = 8
     esr_interval_us: int = 33_000
     scores: bool = True
-    score_max_events: int = 20_000_000
+    score_max_events: int = 5_000_000
 
     def __post_init__(self):
         for key in ("window_us", "chunk_events", "baf_dt_us", "stcf_tau_us", "stcf_k", "stcf_radius",

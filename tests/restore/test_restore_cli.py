@@ -170,3 +170,23 @@ def test_rdnet_method_without_learned_module_exits_2(tmp_path, capsys):
     rc = main(["restore", str(tmp_path / "in.h5"), str(tmp_path / "o.h5"), "--method", "rdnet", "--no-progress"])
     assert rc == 2 and "learned restorer not available" in capsys.readouterr().err
     _assert_no_output(tmp_path, "o.h5", "o.json")
+
+
+def test_classical_restore_does_not_import_torch():
+    import subprocess
+    import sys
+    code = ("import sys; from rdnet.restore.run import restore_recording; import rdnet.cli.restore; "
+            "from rdnet.restore.base import get_restorer; get_restorer('baf', {}, has_frames=False); "
+            "print('torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_consistency_skipped_beyond_score_max_events(tmp_path):
+    _write(tmp_path / "in.h5", frames=True)
+    out = tmp_path / "o.h5"
+    assert main(["restore", str(tmp_path / "in.h5"), str(out), "--method", "raw", "--no-progress",
+                 "--set", "restore.score_max_events=100", "--set", "restore.window_us=5000"]) == 0
+    info = json.loads(out.with_suffix(".json").read_text())
+    assert info["scores"]["consistency"] is None and "not scored" in info["notes"][0]
+    assert info["scores"]["esr"]["raw"] == info["scores"]["esr"]["restored"]   # raw = identity
