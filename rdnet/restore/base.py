@@ -89,29 +89,40 @@ class StcfRestorer:
 
 
 class GefRestorer:
-    """Guided event filtering (:func:`rdnet.baselines.gef.gef_voxel`, mode ``mask``) with
-    the window's frame as guide: the window's events are binned into ``gef_bins`` voxels
-    of unsigned counts, GEF decides which pixels image structure supports, and the
-    events of those pixels are kept unchanged (exact times and polarities; an event is
-    never moved or invented)."""
+    """Guided event filtering (:func:`rdnet.baselines.gef.gef_voxel`) with the window's
+    frame as guide, on the window's events binned into ``gef_bins`` voxels.
+
+    ``gef_mode="mask"`` (default): GEF's mask mode on the unsigned counts decides which
+    pixels image structure supports, and the events of those pixels are kept unchanged
+    (exact times and polarities; an event is never moved or invented).
+    ``gef_mode="filter"``: the signed voxel grid is guided-filtered and rounded back to
+    events (:func:`rdnet.events.voxel.voxel_events`: times spread inside their bin; ON and
+    OFF events of one voxel cancel)."""
 
     name = "gef"
     needs_frames = True
 
     def __init__(self, cfg: RestoreConfig):
-        self.radius, self.eps, self.bins = cfg.gef_radius, cfg.gef_eps, cfg.gef_bins
+        self.radius, self.eps, self.bins, self.mode = cfg.gef_radius, cfg.gef_eps, cfg.gef_bins, cfg.gef_mode
         self.window_us = None
         self.info = {"kind": "filter", "radius": self.radius, "eps": self.eps, "bins": self.bins,
-                     "guide": "gradient", "mode": "mask"}
+                     "guide": "gradient", "mode": self.mode}
 
     def restore(self, events, t0_us, t1_us, frame):
         from rdnet.baselines.gef import gef_voxel
-        from rdnet.eval.events import polarity_counts
         if frame is None:
             raise ConfigError("restore.method", "gef needs the recording's frames")
         if len(events) == 0:
             return events
-        counts = polarity_counts(events, self.bins, t0_us, max(int(t1_us) - int(t0_us), 1)).sum(0)
+        dur = max(int(t1_us) - int(t0_us), 1)
+        if self.mode == "filter":
+            from rdnet.events.voxel import voxel_events, voxel_grid
+            grid = gef_voxel(voxel_grid(events, self.bins, t0_us, dur), frame, self.radius, self.eps, mode="filter")
+            # spread over [t0, t1 - 1]: every event stays inside the window [t0, t1)
+            out = voxel_events(grid, t0_us, max(dur - 1, 1))
+            return out.slice_time(int(t0_us), int(t1_us))
+        from rdnet.eval.events import polarity_counts
+        counts = polarity_counts(events, self.bins, t0_us, dur).sum(0)
         kept = (gef_voxel(counts, frame, self.radius, self.eps) != 0).any(axis=0)     # (H, W)
         return events.select(kept[events.y, events.x])
 

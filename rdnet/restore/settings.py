@@ -18,7 +18,9 @@ class RestoreConfig:
     (a learned restorer may ask for its own). ``chunk_events``: events read at a time
     (memory bound). Filters (defaults = ``ablation.filters``): ``baf_dt_us``;
     ``stcf_tau_us``/``stcf_k``/``stcf_radius``/``stcf_same_polarity``; ``gef_radius``/
-    ``gef_eps`` and ``gef_bins`` (time bins of the window voxel grid GEF filters).
+    ``gef_eps`` and ``gef_bins`` (time bins of the window voxel grid GEF filters);
+    ``gef_mode``: mask (keep the events of the pixels GEF supports, unchanged) or filter
+    (the guided-filtered signed voxel grid rounded back to events: times move to the bins).
     ``device``/``batch_size``: for the learned restorer. ``esr_interval_us``: packet length
     of the ESR no-reference score (E-MLB uses 33 ms); ``scores``: compute the no-reference
     scores at all (false: faster, OUT.json has counts only); ``score_max_events``: event-frame
@@ -36,6 +38,7 @@ class RestoreConfig:
     gef_radius: int = 2
     gef_eps: float = 0.01
     gef_bins: int = 5
+    gef_mode: Literal["mask", "filter"] = "mask"
     device: Literal["cpu", "cuda", "auto"] = "auto"
     batch_size: int = 8
     esr_interval_us: int = 33_000
@@ -50,5 +53,7 @@ class RestoreConfig:
         positive("restore.score_max_events", self.score_max_events)
         if self.method not in METHODS:
             raise ConfigError("restore.method", f"must be one of {list(METHODS)}, got {self.method!r}")
+        if self.gef_mode not in ("mask", "filter"):
+            raise ConfigError("restore.gef_mode", f"must be mask or filter, got {self.gef_mode!r}")
         if self.device not in ("cpu", "cuda", "auto"):
             raise ConfigError("restore.device", f"must be cpu, cuda or auto, got {self.device!r}")

@@ -190,3 +190,26 @@ def test_consistency_skipped_beyond_score_max_events(tmp_path):
     info = json.loads(out.with_suffix(".json").read_text())
     assert info["scores"]["consistency"] is None and "not scored" in info["notes"][0]
     assert info["scores"]["esr"]["raw"] == info["scores"]["esr"]["restored"]   # raw = identity
+
+
+@pytest.mark.parametrize("method,sets", [("raw", {}), ("baf", {}), ("stcf", {"stcf_same_polarity": True}),
+                                         ("gef", {}), ("gef", {"gef_mode": "filter"})])
+def test_restorer_contract(method, sets):
+    """Any restorer: called on consecutive windows, returns time-sorted events of the same
+    sensor inside each window; the filters return a subset of their input."""
+    from rdnet.restore.base import Restorer, get_restorer
+    ev, _ = edge_noise_hot(seed=6)
+    frame = _frames(ev.width, ev.height, 1).grey()[0]
+    r = get_restorer(method, {"restore": sets}, has_frames=True)
+    assert isinstance(r, Restorer)
+    total = 0
+    for a in range(0, 62_000, 7_000):
+        w = ev.slice_time(a, a + 7_000)
+        out = r.restore(w, a, a + 7_000, frame if r.needs_frames else None)
+        assert (out.width, out.height) == (ev.width, ev.height)
+        if len(out):
+            assert out.t[0] >= a and out.t[-1] < a + 7_000 and np.all(np.diff(out.t) >= 0)
+        if sets.get("gef_mode") != "filter":
+            assert np.isin(out.array, w.array).all()
+        total += len(out)
+    assert 0 < total <= len(ev) or sets.get("gef_mode") == "filter"
