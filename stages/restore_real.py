@@ -79,8 +79,8 @@ def score_recording(name, path, params, data_out, log):
             "name": res["method"], "events_out": res["events_out"], "kept_fraction": res["kept_fraction"],
             "esr": res["scores"]["esr"]["restored"],
             "consistency_r2": (cons.get("restored") or {}).get("r2_fitted"),
-            "regions": {k: v["fraction"] for k, v in mask_fractions(raw, restored, masks).items()},
-            "events_per_s": res["events_per_s"], "realtime_factor": res["realtime_factor"]}
+            "regions": {k: v["fraction"] for k, v in mask_fractions(raw, restored, masks).items()}}
+        # (speed is not recorded here, so the committed summary is reproducible: bench_restore.py)
         (data_out / name / f"{method}.summary.json").write_text(json.dumps(res, indent=2) + "\n")
     return entry, rec, raw, outs, act
 
