@@ -38,6 +38,7 @@ SECTIONS: dict[str, str] = {
     "study": "rdnet.study.config:StudyConfig",
     "calibrate": "rdnet.calib.settings:CalibrateConfig",
     "deblur": "rdnet.deblur.config:DeblurConfig",
+    "restore": "rdnet.restore.settings:RestoreConfig",
 }
 
 

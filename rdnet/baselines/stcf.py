@@ -9,7 +9,9 @@
   keeps one timestamp map (the last event time per pixel, per polarity when
   ``same_polarity``), updated by every event whether kept or not, so ``k`` counts distinct
   supporting pixels. Causal: only past events support an event. One pass over the
-  events in a numba kernel (O(N (2r+1)^2)).
+  events in a numba kernel (O(N (2r+1)^2)). Streaming: pass one :class:`StcfState` to
+  successive calls on consecutive chunks of a stream and the result is exactly that of
+  one call on the whole stream (the timestamp map is carried across chunks).
 * :func:`stcf_voxel` -- the same idea on a voxel grid (for the study's pairs files, which
   store only voxels): a non-zero voxel is kept if at least ``k`` neighbouring pixels hold
   events in the same bin or the ``window_bins - 1`` previous bins. Vectorized with box
@@ -24,11 +26,30 @@ from rdnet.errors import ValidationError
 from rdnet.events.core import Events
 
 
+#: Timestamp of a pixel that never fired (far enough in the past for any ``tau``).
+NEVER_US = np.iinfo(np.int64).min // 2
+
+
+class StcfState:
+    """The timestamp map of :func:`stcf_mask` carried between chunks of one stream:
+    ``last`` (1 or 2 polarities, height, width) int64, the last event time per pixel."""
+
+    def __init__(self, width: int, height: int, same_polarity: bool = False):
+        self.width, self.height, self.same_polarity = int(width), int(height), bool(same_polarity)
+        self.last = np.full((2 if same_polarity else 1, self.height, self.width), NEVER_US, np.int64)
+
+    def check(self, events: Events, same_polarity: bool) -> None:
+        if (events.width, events.height) != (self.width, self.height):
+            raise ValidationError("state", f"state is for a {self.width}x{self.height} sensor, events are "
+                                           f"{events.width}x{events.height}")
+        if bool(same_polarity) != self.same_polarity:
+            raise ValidationError("state", f"state made with same_polarity={self.same_polarity}")
+
+
 @numba.njit(cache=True)
-def _stcf_kernel(t, x, y, p, width, height, tau, k, radius, include_self, same_polarity):
+def _stcf_kernel(t, x, y, p, last, tau, k, radius, include_self, same_polarity):
     n = t.shape[0]
-    npol = 2 if same_polarity else 1
-    last = np.full((npol, height, width), np.iinfo(np.int64).min // 2, np.int64)
+    height, width = last.shape[1], last.shape[2]
     keep = np.zeros(n, np.bool_)
     for i in range(n):
         ti, xi, yi = t[i], np.int64(x[i]), np.int64(y[i])
@@ -55,21 +76,29 @@ def _check(tau_us, k, radius):
 
 
 def stcf_mask(events: Events, tau_us: int = 10000, k: int = 2, radius: int = 1, *,
-              include_self: bool = False, same_polarity: bool = False) -> np.ndarray:
-    """Boolean keep-mask of :func:`stcf_filter` (one entry per event)."""
+              include_self: bool = False, same_polarity: bool = False,
+              state: StcfState | None = None) -> np.ndarray:
+    """Boolean keep-mask of :func:`stcf_filter` (one entry per event). ``state``: the
+    timestamp map of the previous chunks of the same stream (updated in place); None
+    starts from an empty map."""
     _check(tau_us, k, radius)
+    if state is None:
+        state = StcfState(events.width, events.height, same_polarity)
+    else:
+        state.check(events, same_polarity)
     if len(events) == 0:
         return np.zeros(0, bool)
-    return _stcf_kernel(events.t, events.x, events.y, events.p, events.width, events.height,
+    return _stcf_kernel(events.t, events.x, events.y, events.p, state.last,
                         np.int64(tau_us), int(k), int(radius), bool(include_self),
                         bool(same_polarity))
 
 
 def stcf_filter(events: Events, tau_us: int = 10000, k: int = 2, radius: int = 1, *,
-                include_self: bool = False, same_polarity: bool = False) -> Events:
+                include_self: bool = False, same_polarity: bool = False,
+                state: StcfState | None = None) -> Events:
     """Events supported by at least ``k`` neighbours within ``tau_us`` (module docstring)."""
     return events.select(stcf_mask(events, tau_us, k, radius, include_self=include_self,
-                                   same_polarity=same_polarity))
+                                   same_polarity=same_polarity, state=state))
 
 
 def _box_sum(a: np.ndarray, radius: int) -> np.ndarray:

@@ -13,7 +13,7 @@ import sys
 from rdnet import __version__
 from rdnet.errors import RdnetError
 
-COMMANDS = ["info", "convert", "simulate", "calibrate", "deblur", "rdnet.train.run"]
+COMMANDS = ["info", "convert", "simulate", "calibrate", "restore", "deblur", "rdnet.train.run"]
 
 log = logging.getLogger("rdnet")
 

@@ -1,0 +1,166 @@
+"""``rdnet restore``: restore a recording's events, streamed in time windows.
+
+Writes OUT.h5 (the restored events in the project's HDF5 layout, the frames copied when
+the recording has them) and OUT.json beside it (OUT with suffix ``.json``):
+
+* ``input``, ``format``, ``width``, ``height``, ``has_frames``, ``duration_us``,
+* ``method`` (the restorer's name, e.g. ``baf`` or ``rdnet-events``) and ``model``
+  (what the restorer reports about itself: filter parameters, or the checkpoint path,
+  kind, training config and metrics of a learned one),
+* ``events_in``, ``events_out``, ``kept_fraction``, ``windows``, ``window_us``,
+  ``seconds`` (wall time of the restore loop, after reading), ``cpu_seconds`` (its CPU
+  time), ``events_per_s`` (input events per second of wall time),
+  ``realtime_factor`` (recording duration / wall time),
+* ``scores``: no-reference scores of the raw and the restored stream: ``esr``
+  (:func:`rdnet.eval.noref.esr_score`, higher = more structured) and, with frames,
+  ``consistency`` (:mod:`rdnet.deblur.consistency`: event-frame consistency, higher is
+  better; null with a note when the raw stream has more than ``score_max_events``),
+* ``settings``: the ``restore`` section used.
+
+Both files are written atomically: on any error neither exists afterwards (an older
+OUT.h5/OUT.json is left untouched).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import time
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from rdnet.config import section, to_dict
+from rdnet.errors import FormatError
+from rdnet.events.core import Events, concatenate
+from rdnet.restore.base import get_restorer
+from rdnet.restore.stream import _open, windows
+
+log = logging.getLogger(__name__)
+
+
+def json_path_for(out: str | Path) -> Path:
+    return Path(out).with_suffix(".json")
+
+
+def nearest_frame(frames, t_mid_us: int, grey: np.ndarray | None = None) -> np.ndarray | None:
+    """The grey linear frame whose mid-exposure time is nearest ``t_mid_us``."""
+    if frames is None:
+        return None
+    i = int(np.argmin(np.abs(frames.t_us - int(t_mid_us))))
+    return (grey if grey is not None else frames.grey())[i]
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        return v if np.isfinite(v) else None
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *, method: str | None = None,
+                      checkpoint: str | Path | None = None, progress: bool = True,
+                      sensor_size: tuple[int, int] | None = None) -> dict:
+    """Run ``rdnet restore`` (module docstring); returns the OUT.json content.
+    ``sensor_size`` (width, height): for formats that do not store it (text)."""
+    from tqdm import tqdm
+
+    from rdnet.events.io._common import atomic_output
+    from rdnet.events.io.hdf5 import H5RecordingWriter
+    from rdnet.eval.noref import EsrAccumulator
+
+    cfg = section(params, "restore")
+    method = method or cfg.method
+    recording, out = Path(recording), Path(out)
+    if out.suffix.lower() not in (".h5", ".hdf5"):
+        raise FormatError(out, None, "output must be an HDF5 file (.h5)")
+    if out.resolve() == recording.resolve():
+        raise FormatError(out, None, "output would overwrite the input recording")
+    with _open(recording, sensor_size) as src:
+        frames = src.frames()
+        has_frames = frames is not None and len(frames) > 0
+        restorer = get_restorer(method, params, checkpoint, has_frames=has_frames)
+        if restorer.needs_frames and not has_frames:
+            raise FormatError(recording, "frames", f"method {restorer.name} needs frames; the recording has none")
+        window_us = int(restorer.window_us or cfg.window_us)
+        grey = frames.grey() if has_frames else None
+        esr_raw = EsrAccumulator(src.width, src.height, cfg.esr_interval_us)
+        esr_out = EsrAccumulator(src.width, src.height, cfg.esr_interval_us)
+        keep_streams = has_frames and cfg.scores
+        raw_parts: list[Events] = []
+        out_parts: list[Events] = []
+        n_in = n_out = n_win = n_pending = 0
+        pending: list[Events] = []
+        t_first = t_last = None
+        total = getattr(src, "n_events", None)
+        start, cpu_start = time.perf_counter(), time.process_time()
+        with atomic_output(json_path_for(out)) as json_tmp, \
+                H5RecordingWriter(out, src.width, src.height, getattr(src, "sensor", "") or "") as writer, \
+                tqdm(total=total, desc=f"restore {restorer.name}", unit="ev", unit_scale=True,
+                     disable=(not progress) or None) as bar:
+            for t0, t1, ev in windows(src.chunks(cfg.chunk_events), window_us, path=recording):
+                frame = nearest_frame(frames, (t0 + t1) // 2, grey) if has_frames else None
+                res = restorer.restore(ev, t0, t1, frame)
+                pending.append(res)
+                n_pending += len(res)
+                if n_pending >= cfg.chunk_events:          # few large HDF5 appends, memory bounded
+                    writer.append_events(concatenate(pending))
+                    pending, n_pending = [], 0
+                if cfg.scores:
+                    esr_raw.add(ev)
+                    esr_out.add(res)
+                if keep_streams:
+                    if n_in + len(ev) > cfg.score_max_events:
+                        keep_streams = False
+                        raw_parts, out_parts = [], []
+                    else:
+                        raw_parts.append(ev)
+                        out_parts.append(res)
+                if len(ev):
+                    t_first = int(ev.t[0]) if t_first is None else t_first
+                    t_last = int(ev.t[-1])
+                n_in += len(ev)
+                n_out += len(res)
+                n_win += 1
+                bar.update(len(ev))
+            if pending:
+                writer.append_events(concatenate(pending))
+            if has_frames:
+                writer.write_frames(frames)
+            seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
+            writer.set_attr("restore_method", restorer.name)
+            duration = (t_last - t_first) if t_first is not None else 0
+            scores = {"esr": {"raw": esr_raw.score(), "restored": esr_out.score(),
+                              "interval_us": cfg.esr_interval_us} if cfg.scores else None,
+                      "consistency": None}
+            notes = [] if cfg.scores else ["no-reference scores off (restore.scores=false)"]
+            if has_frames and keep_streams:
+                from rdnet.eval.noref import frame_consistency
+                raw_all = concatenate(raw_parts)
+                scores["consistency"] = frame_consistency(frames, {"raw": raw_all, "restored": concatenate(out_parts)},
+                                                          section(params, "sensor"), raw_all)
+            elif has_frames and cfg.scores:
+                notes.append(f"event-frame consistency not scored: more than {cfg.score_max_events} raw events")
+            result = {
+                "input": str(recording), "output": str(out), "format": src.format,
+                "width": src.width, "height": src.height, "has_frames": has_frames,
+                "method": restorer.name, "model": getattr(restorer, "info", {}),
+                "checkpoint": None if checkpoint is None else str(checkpoint),
+                "events_in": n_in, "events_out": n_out,
+                "kept_fraction": n_out / n_in if n_in else None,
+                "windows": n_win, "window_us": window_us, "duration_us": duration,
+                "seconds": seconds, "cpu_seconds": cpu_seconds, "events_per_s": n_in / seconds if seconds > 0 else None,
+                "realtime_factor": (duration * 1e-6) / seconds if seconds > 0 else None,
+                "scores": scores, "notes": notes, "settings": {**to_dict(cfg), "method": method}}
+            result = _jsonable(result)
+            json_tmp.write_text(json.dumps(result, indent=2) + "\n")
+    log.info("restored %d -> %d events with %s", n_in, n_out, restorer.name)
+    return result

@@ -1,0 +1,59 @@
+"""``restore`` section of params.yaml: how ``rdnet restore`` cleans a recording."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from rdnet.config import positive
+from rdnet.errors import ConfigError
+
+METHODS = ("rdnet", "baf", "stcf", "gef", "raw")
+
+
+@dataclass(frozen=True)
+class RestoreConfig:
+    """``method``: rdnet (the learned restorer: image-guided when the recording has frames,
+    events-only otherwise), baf, stcf, gef (needs frames) or raw (copy, the reference).
+    ``window_us``: length of the consecutive time windows the recording is restored in
+    (a learned restorer may ask for its own). ``chunk_events``: events read at a time
+    (memory bound). Filters (defaults = ``ablation.filters``): ``baf_dt_us``;
+    ``stcf_tau_us``/``stcf_k``/``stcf_radius``/``stcf_same_polarity``; ``gef_radius``/
+    ``gef_eps`` and ``gef_bins`` (time bins of the window voxel grid GEF filters);
+    ``gef_mode``: mask (keep the events of the pixels GEF supports, unchanged) or filter
+    (the guided-filtered signed voxel grid rounded back to events: times move to the bins).
+    ``device``/``batch_size``: for the learned restorer. ``esr_interval_us``: packet length
+    of the ESR no-reference score (E-MLB uses 33 ms); ``scores``: compute the no-reference
+    scores at all (false: faster, OUT.json has counts only); ``score_max_events``: event-frame
+    consistency is scored only when the raw stream has at most this many events (it holds
+    both streams in memory)."""
+
+    method: Literal["rdnet", "baf", "stcf", "gef", "raw"] = "rdnet"
+    window_us: int = 50_000
+    chunk_events: int = 1_000_000
+    baf_dt_us: int = 10_000
+    stcf_tau_us: int = 10_000
+    stcf_k: int = 2
+    stcf_radius: int = 1
+    stcf_same_polarity: bool = False
+    gef_radius: int = 2
+    gef_eps: float = 0.01
+    gef_bins: int = 5
+    gef_mode: Literal["mask", "filter"] = "mask"
+    device: Literal["cpu", "cuda", "auto"] = "auto"
+    batch_size: int = 8
+    esr_interval_us: int = 33_000
+    scores: bool = True
+    score_max_events: int = 5_000_000
+
+    def __post_init__(self):
+        for key in ("window_us", "chunk_events", "baf_dt_us", "stcf_tau_us", "stcf_k", "stcf_radius",
+                    "gef_radius", "gef_bins", "batch_size", "esr_interval_us"):
+            positive(f"restore.{key}", getattr(self, key), allow_zero=False)
+        positive("restore.gef_eps", self.gef_eps, allow_zero=False)
+        positive("restore.score_max_events", self.score_max_events)
+        if self.method not in METHODS:
+            raise ConfigError("restore.method", f"must be one of {list(METHODS)}, got {self.method!r}")
+        if self.gef_mode not in ("mask", "filter"):
+            raise ConfigError("restore.gef_mode", f"must be mask or filter, got {self.gef_mode!r}")
+        if self.device not in ("cpu", "cuda", "auto"):
+            raise ConfigError("restore.device", f"must be cpu, cuda or auto, got {self.device!r}")

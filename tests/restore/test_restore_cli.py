@@ -1,0 +1,215 @@
+"""rdnet restore: streamed windows, CLI round trips, bad input (exit 2, no partial output)."""
+import importlib.util
+import json
+
+import numpy as np
+import pytest
+
+from rdnet.baselines import baf_filter, stcf_filter
+from rdnet.cli import main
+from rdnet.events import Events, Frames, Recording
+from rdnet.events.io import read_recording, write_recording
+from rdnet.restore.base import GefRestorer
+from rdnet.restore.settings import RestoreConfig
+from rdnet.restore.stream import windows
+
+from _streams import edge_noise_hot
+
+
+def _frames(W=60, H=40, n=4):
+    im = np.zeros((n, H, W), np.float32)
+    im[:, :, W // 2:] = 0.8
+    return Frames(im + 0.1, 5_000 + 15_000 * np.arange(n), np.full(n, 1000))
+
+
+def _write(path, frames=False, events=True):
+    ev, _ = edge_noise_hot(seed=2)
+    rec = Recording(ev.width, ev.height, events=ev if events else None,
+                    frames=_frames(ev.width, ev.height) if frames else None, sensor="SYN")
+    write_recording(path, rec)
+    return ev
+
+
+def test_windows_tile_the_stream():
+    ev, _ = edge_noise_hot(seed=4)
+    chunks = (ev[i:i + 137] for i in range(0, len(ev), 137))
+    got = list(windows(chunks, 4000))
+    t0s = [w[0] for w in got]
+    assert t0s[0] == int(ev.t[0]) and all(b[0] == a[1] for a, b in zip(got[:-1], got[1:]))
+    assert all(a[1] - a[0] == 4000 for a in got)
+    for t0, t1, e in got:
+        assert len(e) == 0 or (e.t[0] >= t0 and e.t[-1] < t1)
+    np.testing.assert_array_equal(np.concatenate([w[2].array for w in got]), ev.array)
+
+
+@pytest.mark.parametrize("method,ref", [("baf", lambda e: baf_filter(e, 10_000)),
+                                        ("stcf", lambda e: stcf_filter(e, 10_000, 2, 1)),
+                                        ("raw", lambda e: e)])
+def test_cli_round_trip_without_frames(tmp_path, method, ref):
+    ev = _write(tmp_path / "in.h5")
+    out = tmp_path / "out.h5"
+    rc = main(["restore", str(tmp_path / "in.h5"), str(out), "--method", method, "--no-progress",
+               "--set", "restore.window_us=7000", "--set", "restore.chunk_events=333"])
+    assert rc == 0
+    rec = read_recording(out)
+    want = ref(ev)                       # small windows and chunks give the one-pass result
+    np.testing.assert_array_equal(rec.events.array, want.array)
+    assert rec.frames is None
+    info = json.loads(out.with_suffix(".json").read_text())
+    assert info["method"] == method and info["events_in"] == len(ev) and info["events_out"] == len(want)
+    assert info["has_frames"] is False and info["scores"]["consistency"] is None
+    assert info["scores"]["esr"]["raw"] > 0
+    if method != "raw":
+        assert len(want) < len(ev)       # the isolated noise of the synthetic stream goes
+
+
+def test_cli_with_frames_copies_frames_and_scores(tmp_path):
+    ev = _write(tmp_path / "in.h5", frames=True)
+    out = tmp_path / "o.h5"
+    assert main(["restore", str(tmp_path / "in.h5"), str(out), "--method", "gef", "--no-progress"]) == 0
+    rec, src = read_recording(out), read_recording(tmp_path / "in.h5")
+    np.testing.assert_array_equal(rec.frames.images, src.frames.images)
+    np.testing.assert_array_equal(rec.frames.t_us, src.frames.t_us)
+    info = json.loads(out.with_suffix(".json").read_text())
+    assert info["has_frames"] and set(info["scores"]["consistency"]) == {"raw", "restored"}
+    kept = rec.events
+    assert 0 < len(kept) < len(ev) and np.isin(kept.array, ev.array).all()   # a subset, nothing invented
+
+
+def _support(ev, dt_us):
+    """Brute-force reference: distinct neighbour pixels (3 x 3, self excluded) that fired
+    within dt before each event (earlier in the stream)."""
+    t, x, y = ev.t, ev.x.astype(int), ev.y.astype(int)
+    out = np.zeros(len(ev), int)
+    for i in range(len(ev)):
+        j = np.arange(i)
+        near = (np.abs(x[j] - x[i]) <= 1) & (np.abs(y[j] - y[i]) <= 1) & ~((x[j] == x[i]) & (y[j] == y[i]))
+        near &= t[i] - t[j] <= dt_us
+        out[i] = np.unique(y[j][near] * ev.width + x[j][near]).size
+    return out
+
+
+@pytest.mark.parametrize("method,k", [("baf", 1), ("stcf", 2)])
+def test_filters_keep_edge_remove_noise_and_hot_pixel(method, k):
+    from rdnet.restore.base import get_restorer
+    ev, lab = edge_noise_hot(seed=5, n_noise=150)
+    r = get_restorer(method, {}, has_frames=False)
+    parts = [r.restore(ev.slice_time(a, a + 5000), a, a + 5000, None) for a in range(0, 65_000, 5000)]
+    kept = np.isin(ev.array, np.concatenate([p.array for p in parts]))
+    np.testing.assert_array_equal(kept, _support(ev, 10_000) >= k)       # the rule, across windows
+    edge = (lab == 0) & (ev.x > 1)          # the first columns have no earlier neighbour
+    assert kept[edge].mean() > 0.97
+    isolated = (lab == 1) & (_support(ev, 10_000) == 0)
+    assert isolated.sum() > 50 and not kept[isolated].any()
+    # a hot pixel with silent neighbours: removed entirely away from the edge's passage
+    # (x = 7 at about 7 ms, its support lasts 10 ms). With random noise around it, BAF
+    # (k = 1) lets it through whenever one noise event lands next to it (14 of 67 here).
+    ev, lab = edge_noise_hot(seed=5, n_noise=0)
+    r = get_restorer(method, {}, has_frames=False)
+    out = r.restore(ev, 0, 65_000, None)
+    kept = np.isin(ev.array, out.array)
+    hot = (lab == 2) & ((ev.t < 6_000) | (ev.t > 19_000))
+    assert hot.sum() > 50 and not kept[hot].any()
+    assert kept[(lab == 0) & (ev.x > 1)].all()          # noise-free: the edge passes unchanged
+
+
+def test_gef_keeps_structure_drops_isolated_event():
+    W, H = 40, 30
+    im = np.full((H, W), 0.1, np.float32)
+    im[:, 20:] = 0.9                                      # one vertical intensity edge at x = 20
+    t = np.arange(0, 2000, 20)                            # 100 events on the edge columns ...
+    x = np.where(np.arange(t.size) % 2 == 0, 19, 20)
+    y = np.arange(t.size) % H
+    t = np.r_[t, 1000]; x = np.r_[x, 3]; y = np.r_[y, 3]  # ... and one in the flat corner
+    o = np.argsort(t, kind="stable")
+    ev = Events.from_columns(t[o], x[o], y[o], np.ones(t.size, np.uint8), W, H)
+    out = GefRestorer(RestoreConfig()).restore(ev, 0, 2000, im)
+    assert not ((out.x == 3) & (out.y == 3)).any()
+    assert ((out.x == 19) | (out.x == 20)).sum() == 100
+
+
+def _assert_no_output(tmp_path, *names):
+    for n in names:
+        assert not (tmp_path / n).exists()
+    assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_recording_without_events_exits_2(tmp_path, capsys):
+    _write(tmp_path / "in.h5", frames=True, events=False)
+    rc = main(["restore", str(tmp_path / "in.h5"), str(tmp_path / "o.h5"), "--method", "baf", "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "in.h5" in err and "events" in err
+    _assert_no_output(tmp_path, "o.h5", "o.json")
+
+
+def test_gef_without_frames_exits_2(tmp_path, capsys):
+    _write(tmp_path / "in.h5")
+    rc = main(["restore", str(tmp_path / "in.h5"), str(tmp_path / "o.h5"), "--method", "gef", "--no-progress"])
+    assert rc == 2 and "frames" in capsys.readouterr().err
+    _assert_no_output(tmp_path, "o.h5", "o.json")
+
+
+def test_bad_arguments_exit_2_and_leave_old_output(tmp_path, capsys):
+    _write(tmp_path / "in.h5")
+    (tmp_path / "o.h5").write_bytes(b"old")
+    for extra in (["--method", "baf", "--checkpoint", str(tmp_path / "x.pt")],
+                  ["--method", "baf", "--set", "restore.window_us=0"],
+                  ["--method", "baf", "--set", "restore.nope=1"]):
+        rc = main(["restore", str(tmp_path / "in.h5"), str(tmp_path / "o.h5"), "--no-progress", *extra])
+        assert rc == 2
+    assert (tmp_path / "o.h5").read_bytes() == b"old" and not (tmp_path / "o.json").exists()
+    assert main(["restore", str(tmp_path / "missing.h5"), str(tmp_path / "p.h5"), "--method", "baf"]) == 2
+    assert main(["restore", str(tmp_path / "in.h5"), str(tmp_path / "p.txt"), "--method", "baf"]) == 2
+    _assert_no_output(tmp_path, "p.h5", "p.json", "p.txt")
+
+
+@pytest.mark.skipif(importlib.util.find_spec("rdnet.restore.learned") is not None,
+                    reason="learned restorer present: its loading is tested in its own tests")
+def test_rdnet_method_without_learned_module_exits_2(tmp_path, capsys):
+    _write(tmp_path / "in.h5")
+    rc = main(["restore", str(tmp_path / "in.h5"), str(tmp_path / "o.h5"), "--method", "rdnet", "--no-progress"])
+    assert rc == 2 and "learned restorer not available" in capsys.readouterr().err
+    _assert_no_output(tmp_path, "o.h5", "o.json")
+
+
+def test_classical_restore_does_not_import_torch():
+    import subprocess
+    import sys
+    code = ("import sys; from rdnet.restore.run import restore_recording; import rdnet.cli.restore; "
+            "from rdnet.restore.base import get_restorer; get_restorer('baf', {}, has_frames=False); "
+            "print('torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_consistency_skipped_beyond_score_max_events(tmp_path):
+    _write(tmp_path / "in.h5", frames=True)
+    out = tmp_path / "o.h5"
+    assert main(["restore", str(tmp_path / "in.h5"), str(out), "--method", "raw", "--no-progress",
+                 "--set", "restore.score_max_events=100", "--set", "restore.window_us=5000"]) == 0
+    info = json.loads(out.with_suffix(".json").read_text())
+    assert info["scores"]["consistency"] is None and "not scored" in info["notes"][0]
+    assert info["scores"]["esr"]["raw"] == info["scores"]["esr"]["restored"]   # raw = identity
+
+
+@pytest.mark.parametrize("method,sets", [("raw", {}), ("baf", {}), ("stcf", {"stcf_same_polarity": True}),
+                                         ("gef", {}), ("gef", {"gef_mode": "filter"})])
+def test_restorer_contract(method, sets):
+    """Any restorer: called on consecutive windows, returns time-sorted events of the same
+    sensor inside each window; the filters return a subset of their input."""
+    from rdnet.restore.base import Restorer, get_restorer
+    ev, _ = edge_noise_hot(seed=6)
+    frame = _frames(ev.width, ev.height, 1).grey()[0]
+    r = get_restorer(method, {"restore": sets}, has_frames=True)
+    assert isinstance(r, Restorer)
+    total = 0
+    for a in range(0, 62_000, 7_000):
+        w = ev.slice_time(a, a + 7_000)
+        out = r.restore(w, a, a + 7_000, frame if r.needs_frames else None)
+        assert (out.width, out.height) == (ev.width, ev.height)
+        if len(out):
+            assert out.t[0] >= a and out.t[-1] < a + 7_000 and np.all(np.diff(out.t) >= 0)
+        if sets.get("gef_mode") != "filter":
+            assert np.isin(out.array, w.array).all()
+        total += len(out)
+    assert 0 < total <= len(ev) or sets.get("gef_mode") == "filter"
