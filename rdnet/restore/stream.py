@@ -1,7 +1,8 @@
 """Reading a recording for ``rdnet restore``: chunks of events grouped into consecutive
 time windows, memory bounded.
 
-All reading goes through :func:`_open` (one place to change). The windows tile the
+All reading goes through :func:`_open` (:func:`rdnet.events.io.stream.open_events`:
+memory stays bounded on large Prophesee and HDF5 files). The windows tile the
 recording from its first event: [t_first + k W, t_first + (k + 1) W), k = 0, 1, ...;
 every window up to the one holding the last event is yielded (empty ones included),
 so a stateful restorer sees the stream in order.
@@ -9,51 +10,23 @@ so a stateful restorer sees the stream in order.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
 from rdnet.errors import FormatError
 from rdnet.events.core import Events, concatenate
-from rdnet.events.recording import Frames
+
+if TYPE_CHECKING:
+    from rdnet.events.io.stream import EventStream
 
 
-class _LoadedSource:
-    """The interface of ``rdnet.events.io.stream.open_events`` over a fully loaded
-    recording (``.width .height .format .has_frames .frames() .chunks(max_events)``)."""
-
-    def __init__(self, path: Path, sensor_size: tuple[int, int] | None = None):
-        from rdnet.events.io import format_of, load
-        self.format = format_of(path)
-        rec = load(path, sensor_size=sensor_size)
-        self.width, self.height = rec.width, rec.height
-        self.sensor = rec.sensor
-        self._events = rec.events if rec.events is not None else Events.empty(rec.width, rec.height)
-        self._frames = rec.frames if rec.frames is not None and len(rec.frames) else None
-        self.has_frames = self._frames is not None
-        self.n_events = len(self._events)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return None
-
-    def frames(self) -> Frames | None:
-        return self._frames
-
-    def chunks(self, max_events: int) -> Iterator[Events]:
-        for i in range(0, len(self._events), int(max_events)):
-            yield self._events[i:i + int(max_events)]
-
-
-def _open(path: str | Path, sensor_size: tuple[int, int] | None = None):
-    """Open ``path`` for streaming (a context manager with ``width``, ``height``,
-    ``format``, ``has_frames``, ``frames()`` and ``chunks(max_events)``); ``sensor_size``
-    (width, height) for formats that do not store it."""
-    # TODO(lead): switch to open_events after merge:
-    #   from rdnet.events.io.stream import open_events; return open_events(path, sensor_size=sensor_size)
-    return _LoadedSource(Path(path), sensor_size)
+def _open(path: str | Path, sensor_size: tuple[int, int] | None = None) -> EventStream:
+    """Open ``path`` for streaming: :func:`rdnet.events.io.stream.open_events` (Prophesee
+    RAW/DAT decoded block by block, HDF5 read chunk by chunk, the small formats loaded);
+    ``sensor_size`` (width, height) for formats that do not store it."""
+    from rdnet.events.io.stream import open_events
+    return open_events(path, sensor_size=sensor_size)
 
 
 def windows(chunks: Iterator[Events], window_us: int, *, path: str | Path = "recording"

@@ -19,3 +19,14 @@ def edge_noise_hot(seed=0, W=60, H=40, T=60_000, n_noise=300, hot=(7, 33), hot_p
     lab = np.r_[np.zeros(H * W, int), np.ones(n_noise, int), np.full(th.size, 2)]
     o = np.argsort(t, kind="stable")
     return Events.from_columns(t[o], x[o], y[o], p[o], W, H), lab[o]
+
+
+def prophesee_codec():
+    """The test encoders of tests/events/prophesee_codec.py (known events -> RAW/DAT bytes)."""
+    import importlib.util
+    from pathlib import Path
+    path = Path(__file__).resolve().parents[1] / "events" / "prophesee_codec.py"
+    spec = importlib.util.spec_from_file_location("prophesee_codec", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod

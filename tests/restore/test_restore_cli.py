@@ -1,6 +1,6 @@
 """rdnet restore: streamed windows, CLI round trips, bad input (exit 2, no partial output)."""
-import importlib.util
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -13,7 +13,7 @@ from rdnet.restore.base import GefRestorer
 from rdnet.restore.settings import RestoreConfig
 from rdnet.restore.stream import windows
 
-from _streams import edge_noise_hot
+from _streams import edge_noise_hot, prophesee_codec
 
 
 def _frames(W=60, H=40, n=4):
@@ -163,13 +163,50 @@ def test_bad_arguments_exit_2_and_leave_old_output(tmp_path, capsys):
     _assert_no_output(tmp_path, "p.h5", "p.json", "p.txt")
 
 
-@pytest.mark.skipif(importlib.util.find_spec("rdnet.restore.learned") is not None,
-                    reason="learned restorer present: its loading is tested in its own tests")
-def test_rdnet_method_without_learned_module_exits_2(tmp_path, capsys):
+def test_rdnet_method_without_learned_module_exits_2(tmp_path, capsys, monkeypatch):
+    """An installation where the learned restorer cannot be imported: one clear line, exit 2,
+    no output (None in sys.modules makes the import fail whether the module exists or not)."""
+    monkeypatch.setitem(sys.modules, "rdnet.restore.learned", None)
     _write(tmp_path / "in.h5")
     rc = main(["restore", str(tmp_path / "in.h5"), str(tmp_path / "o.h5"), "--method", "rdnet", "--no-progress"])
     assert rc == 2 and "learned restorer not available" in capsys.readouterr().err
     _assert_no_output(tmp_path, "o.h5", "o.json")
+
+
+@pytest.mark.parametrize("method", ["baf", "stcf"])
+def test_streamed_restore_equals_loaded_restore(tmp_path, monkeypatch, method):
+    """Prophesee RAW and HDF5 are read through open_events in chunks of 333 events (chunk
+    boundaries fall inside the 7 ms windows): the output equals the restore of the fully
+    loaded events cut into the same windows, and nothing loads the whole file."""
+    import rdnet.events.io as io_pkg
+    from rdnet.events.io import dispatch, load
+    from rdnet.restore.base import get_restorer
+    ev = _write(tmp_path / "in.h5")
+    codec = prophesee_codec()
+    head = f"% evt 2.0\n% format EVT2;height={ev.height};width={ev.width}\n% end\n"
+    (tmp_path / "in.raw").write_bytes(codec.encode_evt2(ev.array, head))
+    window_us, chunk = 7000, 333
+    assert np.any((ev.t[chunk::chunk] - ev.t[0]) % window_us > 0)       # boundaries inside windows
+    params = {"restore": {"window_us": window_us}}
+    restorer = get_restorer(method, params, has_frames=False)
+    loaded = load(tmp_path / "in.raw").events
+    np.testing.assert_array_equal(loaded.array, ev.array)
+    want = np.concatenate([restorer.restore(e, t0, t1, None).array
+                           for t0, t1, e in windows(iter([loaded]), window_us)])
+
+    def no_load(*a, **k):
+        raise AssertionError("restore loaded the whole file")
+    monkeypatch.setattr(dispatch, "load", no_load)
+    monkeypatch.setattr(io_pkg, "load", no_load)
+    for name in ("in.raw", "in.h5"):
+        out = tmp_path / f"out_{name.replace('.', '_')}.h5"
+        assert main(["restore", str(tmp_path / name), str(out), "--method", method, "--no-progress",
+                     "--set", f"restore.window_us={window_us}", "--set", f"restore.chunk_events={chunk}"]) == 0
+        np.testing.assert_array_equal(read_recording(out).events.array, want, err_msg=name)
+        info = json.loads(out.with_suffix(".json").read_text())
+        assert info["events_in"] == len(ev) and info["events_out"] == len(want)
+        assert info["format"] == ("prophesee_raw" if name.endswith(".raw") else "hdf5")
+    assert 0 < len(want) < len(ev)
 
 
 def test_classical_restore_does_not_import_torch():
