@@ -33,7 +33,7 @@ def run(args) -> int:
     from rdnet.calib.report import write_report
     from rdnet.cli.simulate import _section
     from rdnet.errors import FormatError
-    from rdnet.events.io import load
+    from rdnet.events.io import load, open_events
 
     params = load_cli_params(args)
     sensor = _section(params, "sensor", "rdnet.sim.settings:SensorConfig")
@@ -45,6 +45,9 @@ def run(args) -> int:
         interp = dataclasses.replace(interp, method="none")
     if args.out.exists() and not args.out.is_dir():
         raise FormatError(args.out, None, "--out exists and is not a folder")
+    with open_events(args.recording) as src:     # header only (RAW/DAT/HDF5): fail before decoding
+        if not src.has_frames:
+            raise FormatError(args.recording, "frames", "recording has no frames (calibrate simulates from them)")
     rec = load(args.recording)
     cal = calibrate(rec, sensor, degrade, cfg, seed=args.seed, interpolate=interp, source=str(args.recording))
     paths = write_report(cal, args.out, plots=not args.no_plots)

@@ -90,3 +90,19 @@ def test_cli_unknown_set_key_and_missing_file(rec, tmp_path, capsys):
     rc, cap = _run(capsys, tmp_path / "missing.h5", "--out", tmp_path / "o", "--params", _params(tmp_path))
     assert rc == 2 and "missing.h5" in cap.err
     assert not (tmp_path / "o").exists()
+
+
+def test_cli_events_only_raw_fails_before_decoding(tmp_path, capsys, monkeypatch):
+    """A Prophesee RAW file has no frames: the one-line error comes from its header, before
+    any event is decoded (decoding these 3 data bytes would fail with 'truncated' instead)."""
+    from rdnet.events.io.prophesee import ProphReader
+
+    def no_decode(self):
+        raise AssertionError("decoded the events")
+    monkeypatch.setattr(ProphReader, "units", no_decode)
+    path = tmp_path / "night.raw"
+    path.write_bytes(b"% evt 3.0\n% geometry 64x48\n% end\n" + b"\x01\x02\x03")
+    rc, cap = _run(capsys, path, "--out", tmp_path / "o", "--params", _params(tmp_path))
+    assert rc == 2 and "no frames" in cap.err and "night.raw" in cap.err
+    assert "Traceback" not in cap.err and len(cap.err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
