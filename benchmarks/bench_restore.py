@@ -1,17 +1,20 @@
 """Speed and memory of ``rdnet restore`` end to end (``python -m rdnet.cli restore ...`` in
 a child process: imports, reading, restoring, scoring, writing): events in per second of
 wall time, realtime factor (recording duration / wall time; > 1 = faster than real time)
-and peak resident memory of the child (``resource.getrusage(RUSAGE_CHILDREN)``: the
-maximum over the children so far, so a row's value is an upper bound for that run).
+and peak resident memory of that child process alone (``os.wait4``: its own rusage).
 Each method runs twice: with the no-reference scores (the default) and with
 ``restore.scores=false``. ``restore_loop_s`` is the time inside the restore loop (after
 imports and reading, scoring included when on), from OUT.json, with its CPU time
-(``restore_loop_cpu_s``; the cores are shared, so wall times include waiting). Goal (issue 11): faster than real time on DAVIS346.
+(``restore_loop_cpu_s``). Goal (issue 11): faster than real time on DAVIS346.
 
 Recordings: the DAVIS346 road file (in the repo) and the 10 s Prophesee EVK4 night file
-of ../shared/real when rdnet can read it (skipped with a note otherwise). Methods: every
-classical one that fits the recording (gef only with frames); the learned one is added
-with ``--methods rdnet`` once installed. The load average is recorded (2 shared cores).
+of ../shared/real (skipped with a note when absent). Methods: every classical one (gef
+needs frames: on an events-only file its row records the exit-2 error); the learned one
+is added with ``--methods rdnet`` once installed. The 1-minute load average is recorded
+before each run (the 2 cores are shared with other jobs: wall times include waiting).
+``--big-gb 2`` adds one baf run (scores off) on a multi-GB EVT 3.0 file (night.raw's data
+repeated, built in a temporary folder by bench_formats.py's helper) to show that memory
+does not grow with the file.
 
     .venv/bin/python benchmarks/bench_restore.py        # writes benchmarks/results/restore.json
 """
@@ -21,7 +24,6 @@ import argparse
 import json
 import os
 import platform
-import resource
 import subprocess
 import sys
 import tempfile
@@ -38,30 +40,36 @@ def run_one(path: Path, method: str, work: Path, scores: bool = True) -> dict:
     cmd = [sys.executable, "-m", "rdnet.cli", "restore", str(path), str(out), "--method", method, "--no-progress",
            "--set", f"restore.scores={'true' if scores else 'false'}"]
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    load = os.getloadavg()[0]
     t = time.perf_counter()
-    proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
-    wall = time.perf_counter() - t
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    with open(work / "stderr.txt", "w+") as err:
+        proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=err, text=True)
+        _, status, usage = os.wait4(proc.pid, 0)      # this child's own CPU time and peak RSS
+        wall = time.perf_counter() - t
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        err.seek(0)
+        stderr = err.read()
     if proc.returncode != 0:
-        return {"method": method, "error": proc.stderr.strip().splitlines()[-1] if proc.stderr else "failed",
+        return {"method": method, "error": stderr.strip().splitlines()[-1] if stderr.strip() else "failed",
                 "returncode": proc.returncode}
     info = json.loads(out.with_suffix(".json").read_text())
     dur_s = info["duration_us"] * 1e-6
     return {"method": info["method"], "scores": scores, "events_in": info["events_in"], "events_out": info["events_out"],
-            "duration_s": dur_s, "wall_s": wall, "cpu_s": (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime),
+            "duration_s": dur_s, "wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime,
             "events_per_s": info["events_in"] / wall, "realtime_factor": dur_s / wall,
-            "peak_rss_mb": after.ru_maxrss / 1024.0,
+            "peak_rss_mb": usage.ru_maxrss / 1024.0,
             "restore_loop_s": info["seconds"], "restore_loop_cpu_s": info["cpu_seconds"],
             "restore_loop_events_per_s": info["events_per_s"],
             "restore_loop_realtime_factor_cpu": dur_s / info["cpu_seconds"] if info["cpu_seconds"] > 0 else None,
-            "faster_than_realtime": dur_s / wall > 1.0}
+            "faster_than_realtime": dur_s / wall > 1.0, "load_average_1min_before": load}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--methods", nargs="*", default=["raw", "baf", "stcf", "gef"])
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "restore.json")
+    ap.add_argument("--big-gb", type=float, default=0.0,
+                    help="also restore (baf) a file of about this many GiB: night.raw's data repeated (0: skip)")
     args = ap.parse_args()
     results = {"benchmark": "restore", "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                                                    "platform": platform.platform()},
@@ -85,6 +93,13 @@ def main() -> None:
                     break                 # the file cannot be read at all
             results["recordings"][name] = {"path": str(path.relative_to(ROOT.parent) if ROOT.parent in path.parents
                                                        else path), "runs": rows}
+        if args.big_gb > 0 and RECORDINGS["prophesee_evk4_night"].is_file():
+            from bench_formats import _big_file          # benchmarks/ is on sys.path (run as a script)
+            big, copies = _big_file(work, args.big_gb)
+            r = run_one(big, "baf", work, scores=False)    # ESR on 1280x720 would take ~25 s per 1.2 M events
+            print("big", json.dumps(r), flush=True)
+            results["large_file"] = {"file": f"night.raw's data x {copies} (EVT 3.0)", "bytes": big.stat().st_size,
+                                     "run": r}
     results["load_average_1min_after"] = os.getloadavg()[0]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     from rdnet.eval.report import write_text_atomic
