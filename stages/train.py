@@ -20,7 +20,8 @@ def main(args, params):
         network(params, study.rdnet_stage2_init)          # must name a network of the study
         init_deblur = args.models / study.rdnet_stage2_init
     summary = train_seeds(net, study, section(params, "train"), section(params, "model"),
-                          args.train, args.out, init=args.init, init_deblur=init_deblur, progress=True)
+                          args.train, args.out, init=args.init, init_deblur=init_deblur, progress=True,
+                          timing=args.timing)
     cleanup()
     print(f"trained {args.out} for seeds {summary['seeds']} in {summary['wall_s_total']:.0f} s "
           f"({summary['parameters']:,} parameters)")
@@ -36,6 +37,9 @@ def _parser():
     p.add_argument("--init", type=Path, default=None,
                    help="starting weights: a network directory (seed by seed) or a .pt file")
     p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--timing", type=Path, default=None,
+                   help="wall-time record (default OUT.timing.json); kept out of OUT, so OUT's bytes "
+                        "depend only on the settings and the data")
     p.add_argument("--models", type=Path, default=Path("models"),
                    help="where the study's networks are (study.rdnet_stage2_init)")
     return p

@@ -12,7 +12,7 @@ events, jitter and latency move them. :class:`Engine` therefore splits a config 
   context, and cached per (kernel config, seed) (a small LRU);
 * the **additive** part (shot noise, hot pixels, jitter, latency): drawn on top of the
   cached kernel events with the simulator's own functions (:func:`effects.poisson_events`,
-  :func:`effects.hot_pixels`, :func:`effects.apply_timing`), exactly as
+  :func:`effects.hot_pixels`, :func:`rdnet.sim.sensor.apply_timing`), exactly as
   ``Sensor.step`` composes them for a single chunk.
 
 The composition gives the same events as :func:`rdnet.sim.pair.simulate` with one chunk
@@ -31,7 +31,7 @@ from rdnet.calib.context import CalibContext
 from rdnet.calib.stats import Summary, summarize_arrays
 from rdnet.events.core import Events
 from rdnet.sim import effects
-from rdnet.sim.sensor import Sensor, sort_events
+from rdnet.sim.sensor import Sensor, apply_timing, sort_events
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
 #: degrade keys that act on the events after the pixel circuit (composed by the engine)
@@ -190,7 +190,7 @@ class Engine:
             return arr
         out = np.concatenate(parts) if len(parts) > 1 else arr.copy()
         if timing:
-            effects.apply_timing(out, d, np.random.default_rng([seed, _TIMING]) if d.jitter_us > 0 else None, t0)
+            apply_timing(out, d, np.random.default_rng([seed, _TIMING]) if d.jitter_us > 0 else None, t0)
         return out
 
     def summary(self, sensor: SensorConfig, degrade: DegradeConfig, seed: int) -> Summary:

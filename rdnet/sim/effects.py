@@ -58,6 +58,10 @@ Effects and the sources they follow:
   Walker, ACM TOMS 1977; construction of Vose, IEEE TSE 1991) rather than through a
   normal draw; tables above :data:`MAX_SHIFT_TABLE` entries fall back to one normal per
   event.
+
+Layering: this module imports nothing from :mod:`rdnet.sim.sensor` (the sensor imports it).
+The jitted loops that apply a :class:`ShiftSampler` live in the sensor, next to the kernels
+that inline them (:func:`rdnet.sim.sensor.apply_timing` for a standalone array).
 """
 from __future__ import annotations
 
@@ -169,7 +173,7 @@ def poisson_events(expected: np.ndarray, pixels: np.ndarray | None, t0: int, t1:
 
 
 def timing_shift_bounds(degrade: DegradeConfig) -> tuple[int, int]:
-    """(smallest, largest) integer shift that :func:`apply_timing` can add."""
+    """(smallest, largest) integer shift that :func:`rdnet.sim.sensor.apply_timing` can add."""
     s = JITTER_TRUNCATE * degrade.jitter_us
     return int(math.floor(degrade.latency_us - s)), int(math.ceil(degrade.latency_us + s))
 
@@ -278,21 +282,6 @@ def draw_shift_randoms(sampler: ShiftSampler, n: int, rng: np.random.Generator |
     if sampler.mode == 2:
         return rng.standard_normal(n)
     return np.empty(0)
-
-
-def apply_timing(arr: np.ndarray, degrade: DegradeConfig, rng: np.random.Generator | None,
-                 t_min: int) -> None:
-    """Jitter and latency, in place on the EVENT_DTYPE array ``arr``:
-    ``t <- max(t + round(latency + jitter z), t_min)``, z ~ N(0, 1) truncated at
-    :data:`JITTER_TRUNCATE` (one draw per event in array order, through
-    :func:`shift_sampler`). Leaves ``arr`` unsorted. (:class:`rdnet.sim.sensor.Sensor`
-    fuses the same shift into its per-chunk sort.)"""
-    if (degrade.jitter_us <= 0 and degrade.latency_us <= 0) or arr.size == 0:
-        return
-    from rdnet.sim.sensor import shift_events      # the jitted loop lives with its other user
-
-    sm = shift_sampler(degrade)
-    shift_events(arr, sm, draw_shift_randoms(sm, arr.size, rng), t_min)
 
 
 def needs_rng(degrade: DegradeConfig) -> bool:

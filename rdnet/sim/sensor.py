@@ -366,6 +366,19 @@ def shift_events(arr: np.ndarray, sampler: effects.ShiftSampler, r: np.ndarray, 
                     sm.latency_us, np.int64(t_min))
 
 
+def apply_timing(arr: np.ndarray, degrade: DegradeConfig, rng: np.random.Generator | None,
+                 t_min: int) -> None:
+    """Jitter and latency, in place on the EVENT_DTYPE array ``arr``:
+    ``t <- max(t + round(latency + jitter z), t_min)``, z ~ N(0, 1) truncated at
+    :data:`rdnet.sim.effects.JITTER_TRUNCATE` (one draw per event in array order, through
+    :func:`rdnet.sim.effects.shift_sampler`). Leaves ``arr`` unsorted. (:class:`Sensor`
+    fuses the same shift into its per-chunk sort.)"""
+    if (degrade.jitter_us <= 0 and degrade.latency_us <= 0) or arr.size == 0:
+        return
+    sm = effects.shift_sampler(degrade)
+    shift_events(arr, sm, effects.draw_shift_randoms(sm, arr.size, rng), t_min)
+
+
 @njit(parallel=True, cache=True, nogil=True)
 def _assemble(out_t, out_x, out_p, seg, cap, held, noise, mode, const, lo_shift, hi_shift, prob, alias, r,
               sigma, latency, t_min, lo, span, counting, hist_buf, out):

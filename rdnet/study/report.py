@@ -45,7 +45,8 @@ def network_compute(checkpoint: str | None) -> dict | None:
     """Training compute of a row's network directory, from the ``summary.json`` that
     :func:`rdnet.study.training.train_seeds` writes, including the networks it was
     initialised from (RDNet = stage 1 + stage 2): ``{"train_s", "iterations", "train_gflop",
-    "parameters"}`` per seed (means over seeds; ``train_s`` depends on the machine's load,
+    "parameters"}`` per seed (means over seeds; ``train_s`` (NaN when a wall time is unknown),
+    from the timing sidecar that ``summary.json`` names, depends on the machine's load,
     ``train_gflop`` = 3 x forward FLOPs x batch x iterations does not); None when unknown."""
     if not checkpoint or str(checkpoint).endswith(".pt"):
         return None
@@ -56,7 +57,12 @@ def network_compute(checkpoint: str | None) -> dict | None:
     runs = s.get("runs") or []
     if not runs:
         return None
-    out = {"train_s": sum(r["wall_s"] for r in runs) / len(runs),
+    if any("wall_s" not in r for r in runs):    # wall times live in the timing sidecar
+        from rdnet.study.training import read_timing
+        walls = read_timing(s.get("timing"))
+        runs = [{**r, "wall_s": r.get("wall_s", walls.get(int(r["seed"])))} for r in runs]
+    known = [r["wall_s"] for r in runs if r["wall_s"] is not None]
+    out = {"train_s": sum(known) / len(known) if len(known) == len(runs) else float("nan"),
            "iterations": sum(r["iterations"] for r in runs) / len(runs),
            "train_gflop": sum(r.get("train_gflop", float("nan")) for r in runs) / len(runs),
            "parameters": int(s.get("parameters", 0))}

@@ -3,13 +3,16 @@ seeds at once in worker processes (``study.parallel``).
 
 Layout of ``out_dir``::
 
-    seed0/model.pt  seed0/train.json     # train.json: seed, iterations, wall_s, parameters
+    seed0/model.pt  seed0/train.json     # train.json: seed, iterations, parameters, FLOPs
     seed1/...
     summary.json                          # the per-seed train.json entries + totals
 
-``train.json`` records the wall time and optimisation steps of each training so that
-the report can put every row's training compute beside its PSNR (the equal-compute
-comparison of RDNet and DeblurNet).
+``train.json`` records the optimisation steps and FLOPs of each training so that the
+report can put every row's training compute beside its PSNR (the equal-compute
+comparison of RDNet and DeblurNet). The wall times go to a sidecar *outside* ``out_dir``
+(``timing``, default ``<out_dir>.timing.json``; ``summary.json`` names it): everything in
+``out_dir`` is then a function of the settings and the data, so a rerun that reproduces
+the weights reproduces the directory byte for byte and DVC sees an unchanged out.
 """
 from __future__ import annotations
 
@@ -48,8 +51,23 @@ def forward_flops(net, crop: int, image_channels: int, bins: int) -> float:
     return float(counter.get_total_flops())
 
 
+def timing_path(out_dir: str | Path) -> Path:
+    """Default wall-time sidecar of a network directory: beside it, not in it."""
+    out_dir = Path(out_dir)
+    return out_dir.with_name(out_dir.name + ".timing.json")
+
+
+def read_timing(path: Path | None) -> dict:
+    """{seed: wall_s} of a timing sidecar ({} when absent or unreadable)."""
+    try:
+        return {int(r["seed"]): r["wall_s"] for r in json.loads(Path(path).read_text())["runs"]}
+    except (OSError, TypeError, ValueError, KeyError):
+        return {}
+
+
 def _train_one(task, train_cfg, model_cfg, train_path, out, events, init, init_deblur, progress) -> dict:
-    """Worker body: one seed's training (also run in-process when parallel is 1)."""
+    """Worker body: one seed's training (also run in-process when parallel is 1). Returns
+    the train.json record plus ``wall_s`` (None for a finished run, not re-timed)."""
     from rdnet.train.loop import train
     out = Path(out)
     record_path = out / "train.json"
@@ -60,7 +78,7 @@ def _train_one(task, train_cfg, model_cfg, train_path, out, events, init, init_d
                init_deblur=init_deblur, resume=True, progress=progress)
     wall = time.perf_counter() - t0
     if finished:
-        return json.loads(record_path.read_text())
+        return {"wall_s": None, **json.loads(record_path.read_text())}   # older records hold wall_s
     from rdnet.train.checkpoint import load_model, read_checkpoint
     net, args = load_model(ck), read_checkpoint(ck)["model_args"]
     n_params = int(sum(p.numel() for p in net.parameters()))
@@ -69,20 +87,22 @@ def _train_one(task, train_cfg, model_cfg, train_path, out, events, init, init_d
     from rdnet.eval.report import write_text_atomic
     from rdnet.train.distributed import dist_info
     record = {"seed": train_cfg.seed, "task": task, "events": events, "iterations": train_cfg.iterations,
-              "wall_s": round(wall, 2), "parameters": n_params, "train_gflop": round(gflop, 1), "checkpoint": str(ck),
+              "parameters": n_params, "train_gflop": round(gflop, 1), "checkpoint": str(ck),
               "threads": train_cfg.threads, "processes": dist_info().world_size}
     if dist_info().rank == 0:
         write_text_atomic(record_path, json.dumps(record, indent=2) + "\n")
-    return record
+    return {**record, "wall_s": round(wall, 2)}
 
 
 def train_seeds(net: NetworkConfig, study: StudyConfig, train_cfg, model_cfg, train_path: str | Path,
                 out_dir: str | Path, *, init: str | Path | None = None, init_deblur: str | Path | None = None,
-                progress: bool = True) -> dict:
+                progress: bool = True, timing: str | Path | None = None) -> dict:
     """Train ``net`` for every seed of ``study`` into ``out_dir/seed<k>``; ``init`` (a
     network directory or a ``.pt`` file) gives each seed's starting weights, seed by seed
     (:func:`~rdnet.study.config.seed_checkpoint`), and ``init_deblur`` RDNet's stage 2.
-    Returns and writes ``summary.json``."""
+    Writes ``summary.json`` (no wall time) and the wall times to ``timing`` (default
+    :func:`timing_path`); returns the summary with each run's ``wall_s`` and
+    ``wall_s_total`` (a finished run keeps its recorded time)."""
     from rdnet.errors import ConfigError
     from rdnet.train.distributed import dist_info
     out_dir = Path(out_dir)
@@ -105,13 +125,21 @@ def train_seeds(net: NetworkConfig, study: StudyConfig, train_cfg, model_cfg, tr
             records = []
             for s, f in zip(study.seeds, futures):
                 records.append(f.result())
-                log.info("seed %d done in %.0f s", s, records[-1]["wall_s"])
+                log.info("seed %d done in %.0f s", s, records[-1]["wall_s"] or 0.0)
+    timing = timing_path(out_dir) if timing is None else Path(timing)
+    before = read_timing(timing)
+    walls = [before.get(int(r["seed"])) if r["wall_s"] is None else r["wall_s"] for r in records]
+    runs = [{k: v for k, v in r.items() if k != "wall_s"} for r in records]
     summary = {"task": net.task, "events": net.events, "iterations_factor": net.iterations_factor,
                "seeds": list(study.seeds), "init": None if init is None else str(init),
-               "init_deblur": None if init_deblur is None else str(init_deblur), "runs": records,
-               "wall_s_total": round(sum(r["wall_s"] for r in records), 2),
-               "parameters": records[0]["parameters"]}
+               "init_deblur": None if init_deblur is None else str(init_deblur), "runs": runs,
+               "parameters": records[0]["parameters"], "timing": str(timing)}
+    times = {"runs": [{"seed": r["seed"], "wall_s": w} for r, w in zip(runs, walls)],
+             "wall_s_total": round(sum(w for w in walls if w is not None), 2)}
     from rdnet.eval.report import write_text_atomic
     if dist_info().rank == 0:
         write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
-    return summary
+        timing.parent.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(timing, json.dumps(times, indent=2) + "\n")
+    return {**summary, "runs": [{**r, "wall_s": w} for r, w in zip(runs, walls)],
+            "wall_s_total": times["wall_s_total"]}

@@ -13,8 +13,8 @@ A checkpoint is a ``torch.save`` dict with:
 * for resuming: ``optimizer``, ``scheduler``, ``step``, ``rng`` (torch CPU/CUDA and
   numpy global generator states).
 
-Files are written atomically (temporary name in the same folder, then ``os.replace``)
-and read with ``torch.load(weights_only=True)``: only tensors and plain Python values
+Files are written atomically (temporary name in the same folder, then ``os.replace``),
+byte for byte the same for the same content (:func:`save_checkpoint`), and read with ``torch.load(weights_only=True)``: only tensors and plain Python values
 are stored, so loading a checkpoint never executes code.
 """
 from __future__ import annotations
@@ -98,12 +98,18 @@ def make_checkpoint(model: nn.Module, task: str, model_args: Mapping, *, config:
 
 
 def save_checkpoint(path: str | Path, checkpoint: Mapping) -> Path:
-    """Write ``checkpoint`` to ``path`` atomically (temp file + os.replace)."""
+    """Write ``checkpoint`` to ``path`` atomically (temp file + os.replace).
+
+    Byte-deterministic: equal content gives equal bytes, so DVC sees an unchanged out
+    when a rerun reproduces the same weights. ``torch.save`` to a *file name* prefixes
+    every zip record with that name (here the random temporary name); to an open file it
+    uses the fixed prefix ``archive/`` (zip timestamps are fixed by torch). Nothing of
+    wall-clock time is stored in a checkpoint."""
     from rdnet.events.io._common import atomic_output
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(path) as tmp:
-        torch.save(dict(checkpoint), tmp)
+    with atomic_output(path) as tmp, open(tmp, "wb") as f:
+        torch.save(dict(checkpoint), f)
     return path
 
 

@@ -8,7 +8,7 @@ from rdnet.config import from_dict
 from rdnet.errors import ConfigError
 from rdnet.events.core import EVENT_DTYPE, Events, concatenate
 from rdnet.sim import effects
-from rdnet.sim.sensor import Sensor
+from rdnet.sim.sensor import Sensor, apply_timing
 from rdnet.sim.settings import DegradeConfig, RandomizeConfig, SensorConfig
 
 
@@ -256,7 +256,7 @@ def test_jitter_shift_table_is_the_rounded_truncated_normal(jitter, latency):
     # sampled through the sensor's shift (one uniform per event): chi-square against p
     arr = np.zeros(200_000, EVENT_DTYPE)
     arr["t"] = 10**8
-    effects.apply_timing(arr, d, np.random.default_rng(0), 0)
+    apply_timing(arr, d, np.random.default_rng(0), 0)
     counts = np.bincount(arr["t"] - 10**8 - lo, minlength=p.size)
     assert counts.size == p.size
     e = p * arr.size
@@ -282,3 +282,39 @@ def test_output_does_not_depend_on_the_thread_count():
     finally:
         numba.set_num_threads(old)
     assert out[0] == out[1]
+
+
+def _rdnet_imports(path):
+    """Every rdnet module that ``path`` imports (top level or inside functions)."""
+    import ast
+    names = set()
+    for node in ast.walk(ast.parse(open(path).read())):
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names.add(node.module)
+            names.update(f"{node.module}.{a.name}" for a in node.names)
+    return {n for n in names if n.startswith("rdnet")}
+
+
+def test_effects_does_not_import_the_sensor():
+    """One direction only: the sensor builds on effects, never the reverse (issue 13)."""
+    assert not {n for n in _rdnet_imports(effects.__file__) if "sensor" in n.split(".")[-1]}
+    import rdnet.sim.sensor as sensor_mod
+    assert "rdnet.sim.effects" in _rdnet_imports(sensor_mod.__file__)
+
+
+@pytest.mark.parametrize("order", [("effects", "sensor"), ("sensor", "effects")])
+def test_effects_and_sensor_import_alone_in_either_order(order):
+    """A fresh interpreter imports each module first without pulling in the other one early."""
+    import os
+    import subprocess
+    import sys
+    first, second = order
+    code = (f"import sys, rdnet.sim.{first}\n"
+            f"assert ('rdnet.sim.sensor' in sys.modules) == ({first!r} == 'sensor')\n"
+            f"import rdnet.sim.{second}\n")
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr

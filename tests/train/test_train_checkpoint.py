@@ -127,3 +127,36 @@ def test_train_and_model_config_validation():
     with pytest.raises(ConfigError, match="model.dec_depths"):
         from_dict(ModelConfig, {"enc_depths": [1, 1], "dec_depths": [1]}, "model")
     assert issubclass(ConfigError, RdnetError)
+
+
+def test_two_saves_of_the_same_content_are_byte_identical(tmp_path, saved):
+    """Equal content, equal bytes (DVC hashes the file): no temporary file name, time or
+    memo address leaks into the zip. The saved file still loads as before."""
+    net, path = saved
+    opt = torch.optim.Adam(net.parameters())
+    ck = make_checkpoint(net, "deblur", ARGS, config={"lr": 1e-3}, optimizer=opt, step=7)
+    a = save_checkpoint(tmp_path / "a" / "model.pt", ck).read_bytes()
+    b = save_checkpoint(tmp_path / "b" / "other_name.pt", dict(ck)).read_bytes()
+    assert a == b == path.read_bytes()
+    # different content, different bytes (the comparison is not blind)
+    c = save_checkpoint(tmp_path / "c.pt", {**ck, "step": 8}).read_bytes()
+    assert c != a
+    assert read_checkpoint(tmp_path / "a" / "model.pt")["step"] == 7
+
+
+def test_training_twice_or_killed_and_resumed_gives_byte_identical_model(tmp_path):
+    """Two runs of the same tiny training (same seed), and one stopped half way then resumed,
+    write the same model.pt bytes, so `dvc repro` sees an unchanged out."""
+    from rdnet.train.loop import train
+    from rdnet.train.synthetic import write_synthetic_pairs
+    pairs = write_synthetic_pairs(tmp_path / "train.h5", n=4, bins=3, height=20, width=20, seed=2)
+    cfg = TrainConfig(iterations=2, batch_size=2, crop=16, device="cpu", log_every=1, ckpt_every=1,
+                      dvclive=False, seed=3)
+    tiny = ModelConfig(size="tiny", width=4)
+    runs = [train("deblur", cfg, tiny, pairs, tmp_path / d, progress=False) for d in ("a", "b")]
+    assert train("deblur", cfg, tiny, pairs, tmp_path / "c", progress=False, stop_after=1).name == "last.pt"
+    runs.append(train("deblur", cfg, tiny, pairs, tmp_path / "c", progress=False))   # resumes at step 1
+    assert [r.name for r in runs] == ["model.pt"] * 3
+    data = [r.read_bytes() for r in runs]
+    assert data[0] == data[1] == data[2]
+    assert read_checkpoint(runs[0])["step"] == 2
