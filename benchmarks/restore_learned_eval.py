@@ -83,7 +83,7 @@ def eval_real(recording: Path, ckpts: dict[str, Path], params: dict) -> dict:
     rec = load_recording(recording)
     ev, frames = rec.events, rec.frames
     s = section(params, "sensor")
-    streams, info = {"raw": ev}, {}
+    streams, info = {"raw": ev.slice_time(int(frames.t_us[0]), int(frames.t_us[-1]))}, {}
     for name, path in ckpts.items():
         r = restorer_from_checkpoint(path, has_frames=True, params=params)
         t = frames.t_us.astype(np.int64)
@@ -109,6 +109,7 @@ def main() -> None:
     p.add_argument("--pairs", type=Path, required=True)
     p.add_argument("--ckpt", action="append", default=[], help="NAME=PATH (repeatable)")
     p.add_argument("--real", type=Path, default=Path("data/real/davis346_road/davis346.aedat4"))
+    p.add_argument("--no-real", dest="real", action="store_const", const=None, help="skip the real recording")
     p.add_argument("--real-ckpt", action="append", default=None, help="names of --ckpt run on --real (default all)")
     p.add_argument("--params", type=Path, default=Path("params.yaml"))
     p.add_argument("--out", type=Path, required=True)
@@ -118,7 +119,7 @@ def main() -> None:
     ckpts = {k: Path(v) for k, v in ckpts.items()}
     res = {"pairs": str(a.pairs), "test": eval_pairs(a.pairs, ckpts)}
     real = {k: v for k, v in ckpts.items() if a.real_ckpt is None or k in a.real_ckpt}
-    if a.real and a.real.exists():
+    if a.real is not None:
         res["real"] = {"recording": str(a.real), **eval_real(a.real, real, load_params(a.params))}
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(res, indent=2, sort_keys=True) + "\n")

@@ -199,3 +199,38 @@ def load_restorer(checkpoint: str | Path | None, *, has_frames: bool, params: Ma
             return r
     raise ConfigError("checkpoint", "no trained restorer: give --checkpoint, run `dvc repro` "
                       f"(writes {STUDY_MODELS[has_frames]}) or install rdnet with its packaged models")
+
+
+def export_restorer(checkpoint: str | Path, out_dir: str | Path, *, has_frames: bool,
+                    metrics: Mapping | None = None) -> Path:
+    """Copy a trained restorer to ``out_dir/<name>.pt`` (``name`` from
+    :data:`PACKAGE_MODELS`, e.g. the package folder ``rdnet/restore/models``) with
+    ``<name>.json``: its model arguments, training config, decision and ``metrics``.
+    The checkpoint is validated first (:func:`restorer_from_checkpoint`); both files are
+    written atomically."""
+    import json
+    import shutil
+
+    from rdnet.eval.report import write_text_atomic
+    from rdnet.events.io._common import atomic_output
+    from rdnet.train import checkpoint as ckpt_mod
+
+    src = _checkpoint_file(Path(checkpoint))
+    if src is None:
+        raise ConfigError("checkpoint", f"{checkpoint}: no model.pt (nor seed<k>/model.pt) found")
+    r = restorer_from_checkpoint(src, has_frames=True)
+    if r.needs_frames != has_frames:
+        raise _fail(src, "model_args.image_channels", f"is {'image-guided' if r.needs_frames else 'events-only'}, "
+                    f"exported as the {'image-guided' if has_frames else 'events-only'} model")
+    ck = ckpt_mod.read_checkpoint(src)
+    name = PACKAGE_MODELS[has_frames]
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with atomic_output(out_dir / f"{name}.pt") as tmp:
+        shutil.copyfile(src, tmp)
+    card = {"name": r.name, "source": str(src), "task": ck["task"], "step": ck.get("step"),
+            "model_args": ck["model_args"], "train": ck["config"], "decision": r.decision,
+            "window_us": r.window_us, "voxel": ck.get("extra", {}).get("voxel"),
+            "metrics": dict(metrics or {})}
+    write_text_atomic(out_dir / f"{name}.json", json.dumps(card, indent=2, sort_keys=True, default=str) + "\n")
+    return out_dir / f"{name}.pt"

@@ -82,3 +82,24 @@ def test_signed_restorer_rounds(tmp_path):
     ev = _events(2)
     out = r.restore(ev, 0, 30000, None)            # fresh signed net = identity on signed voxels
     np.testing.assert_array_equal(voxel_grid(out, 3, 0, 30000), voxel_grid(ev.slice_time(0, 30000), 3, 0, 30000))
+
+
+def test_export_writes_model_and_card_and_package_fallback_reads_it(tmp_path, monkeypatch):
+    import json
+    from rdnet.restore import learned
+    from rdnet.restore.learned import export_restorer
+    src = _save(tmp_path / "src" / "model.pt")
+    out = export_restorer(tmp_path / "src", tmp_path / "pkg", has_frames=False, metrics={"f1": 0.5})
+    card = json.loads((tmp_path / "pkg" / "restore_events.json").read_text())
+    assert out.name == "restore_events.pt" and card["decision"]["threshold"] == 0.5 and card["metrics"] == {"f1": 0.5}
+    with pytest.raises(ConfigError, match="events-only"):
+        export_restorer(src, tmp_path / "pkg2", has_frames=True)
+    # no study model in the working directory: the packaged model is used
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(learned, "_package_file", lambda name: tmp_path / "pkg" / f"{name}.pt"
+                        if (tmp_path / "pkg" / f"{name}.pt").is_file() else None)
+    r = load_restorer(None, has_frames=True, params=PARAMS)       # falls back to events-only
+    assert r.name == "rdnet-events" and r.source.startswith("package model")
+    (tmp_path / "models" / "restore_events").mkdir(parents=True)
+    _save(tmp_path / "models" / "restore_events" / "model.pt")
+    assert load_restorer(None, has_frames=False, params=PARAMS).source.startswith("study model")
