@@ -59,8 +59,8 @@ from rdnet.train.distributed import DistInfo, dist_info, all_reduce_mean, barrie
 log = logging.getLogger(__name__)
 
 #: task -> network kind of :func:`rdnet.nn.models.build_model`.
-TASKS = {"restore": "restore", "restore_events": "restore", "deblur": "deblur", "deblurnet_matched": "deblurnet_matched",
-         "image_only": "image_only", "rdnet": "rdnet"}
+TASKS = {"restore": "restore", "restore_events": "restore", "deblur": "deblur",
+         "deblurnet_matched": "deblurnet_matched", "image_only": "image_only", "rdnet": "rdnet"}
 #: train keys that may change between a checkpoint and the run that resumes it.
 RESUME_FREE = ("log_every", "ckpt_every", "num_workers", "threads", "device", "dvclive")
 #: tasks trained on stage-1 rows only (validation sequences held out, decision fitted).
@@ -106,9 +106,7 @@ def build_seeded(args: Mapping, seed: int) -> nn.Module:
 def compute_loss(task: str, model: nn.Module, batch: Mapping[str, torch.Tensor],
                  cfg: TrainConfig) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """(loss, detached components) of one batch for ``task`` (module docstring)."""
-    from rdnet.nn.losses import deblur_loss, restoration_loss
-
-    from rdnet.nn.losses import count_loss_terms
+    from rdnet.nn.losses import count_loss_terms, deblur_loss, restoration_loss
 
     blurry = batch["blurry"]
     net = ckpt_mod.unwrap(model)
@@ -359,7 +357,9 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
     extra = {"events": events, "train_path": str(Path(train_path)),
              "init_checkpoint": None if init_checkpoint is None else str(init_checkpoint),
              "init_deblur": None if init_deblur is None else str(init_deblur),
-             "model_cfg": to_dict(model_cfg), "pairs_shape": dataclasses.asdict(data.info),
+             "model_cfg": to_dict(model_cfg),
+             # the shape only (has_counts is a property of the file, not of the run)
+             "pairs_shape": {k: v for k, v in dataclasses.asdict(data.info).items() if k != "has_counts"},
              "voxel": read_pairs_voxel(train_path)}
     if task in RESTORE_TASKS:
         extra["val_rows"] = [int(r) for r in val_rows]
