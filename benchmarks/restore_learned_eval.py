@@ -49,13 +49,46 @@ def pair_metrics(restored_counts: np.ndarray, target_counts: np.ndarray, degrade
     return out
 
 
-def eval_pairs(pairs: Path, ckpts: dict[str, Path], also_thresholds=()) -> dict:
+def stcf_counts(pairs: Path, events_dir: Path, split: str, filters: dict) -> np.ndarray:
+    """Per-polarity (N, 2 * bins, H, W) counts of the degraded events of every pairs row after
+    STCF (the study's ``ablation.filters`` settings), run on each whole degraded sequence
+    (``events_dir/<split>/seq_*.h5``, row ``sequence`` = file index, as the blur step
+    numbers them); checks that the unfiltered stream reproduces the stored counts."""
+    import h5py
+    from rdnet.baselines.stcf import stcf_filter
+    from rdnet.events.io.hdf5 import read_events
+    from rdnet.events.voxel import voxel_grid
+    from rdnet.study.data import sequences
+
+    files = sequences(events_dir, split)
+    with h5py.File(pairs, "r") as f:
+        seq, t0, dur = f["sequence"][...], f["t0_us"][...], f["duration_us"][...]
+        bins, mode = int(f.attrs["bins"]), str(f.attrs["voxel_mode"])
+        on0, off0 = f["voxel_degraded_on"][0], f["voxel_degraded_off"][0]
+    out, cache = [], {}
+    for i in range(seq.size):
+        if int(seq[i]) not in cache:
+            ev = read_events(files[int(seq[i])])
+            if i == 0:
+                g = voxel_grid(ev, bins, int(t0[0]), int(dur[0]), mode=mode, polarity="split")
+                if not (np.array_equal(g[0], on0) and np.array_equal(g[1], off0)):
+                    raise SystemExit(f"{files[0]} does not reproduce row 0 of {pairs}")
+            cache = {int(seq[i]): stcf_filter(ev, filters["stcf_tau_us"], filters["stcf_k"], filters["stcf_radius"])}
+        g = voxel_grid(cache[int(seq[i])], bins, int(t0[i]), int(dur[i]), mode=mode, polarity="split")
+        out.append(g.reshape(2 * bins, *g.shape[-2:]))
+    return np.stack(out)
+
+
+def eval_pairs(pairs: Path, ckpts: dict[str, Path], also_thresholds=(), stcf: np.ndarray | None = None) -> dict:
     data = PairsDataset(pairs, crop=None, augment=False)
     rows = [data[i] for i in range(len(data))]
     target = np.stack([r["counts_undegraded"].numpy() for r in rows])
     degraded = np.stack([r["counts_degraded"].numpy() for r in rows])
     res = {"raw": pair_metrics(degraded, target, degraded)}
     res["raw"]["undegraded_events"] = int(target.sum())
+    if stcf is not None:
+        res["stcf"] = pair_metrics(stcf, target, degraded)
+        log.info("stcf: %s", res["stcf"])
     for name, path in ckpts.items():
         ck = ckpt_mod.read_checkpoint(path)
         net = ckpt_mod.model_from_checkpoint(path, ck).eval()
@@ -121,16 +154,25 @@ def main() -> None:
     p.add_argument("--real-ckpt", action="append", default=None, help="names of --ckpt run on --real (default all)")
     p.add_argument("--also-threshold", type=float, action="append", default=[],
                    help="also score count networks at this occupancy threshold (e.g. 0.5)")
+    p.add_argument("--events-dir", type=Path, default=None,
+                   help="simulated sequences of the pairs file (data/events): adds the STCF baseline")
     p.add_argument("--params", type=Path, default=Path("params.yaml"))
     p.add_argument("--out", type=Path, required=True)
     a = p.parse_args()
     torch.set_num_threads(1)
     ckpts = dict(c.split("=", 1) for c in a.ckpt)
     ckpts = {k: Path(v) for k, v in ckpts.items()}
-    res = {"pairs": str(a.pairs), "test": eval_pairs(a.pairs, ckpts, a.also_threshold)}
+    params = load_params(a.params)
+    stcf = None
+    if a.events_dir is not None:
+        import h5py
+        with h5py.File(a.pairs, "r") as f:
+            split = str(f.attrs["split"])
+        stcf = stcf_counts(a.pairs, a.events_dir, split, params["ablation"]["filters"])
+    res = {"pairs": str(a.pairs), "test": eval_pairs(a.pairs, ckpts, a.also_threshold, stcf)}
     real = {k: v for k, v in ckpts.items() if a.real_ckpt is None or k in a.real_ckpt}
     if a.real is not None:
-        res["real"] = {"recording": str(a.real), **eval_real(a.real, real, load_params(a.params))}
+        res["real"] = {"recording": str(a.real), **eval_real(a.real, real, params)}
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(res, indent=2, sort_keys=True) + "\n")
 
