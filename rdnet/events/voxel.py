@@ -16,6 +16,13 @@ networks consume); ``"maxabs"`` divides by the largest absolute value;
 
 :func:`voxel_events` goes the other way: a (restored, real-valued) voxel grid rounded to
 whole events, e.g. to write the output of the restoration network as an event stream.
+
+Per-polarity grids (``polarity="split"``): a (2, bins, height, width) grid of the ON
+(index 0) and OFF (index 1) event *counts* per bin, each non-negative (a signed grid is
+``split[0] - split[1]``, but ON and OFF events of one voxel no longer cancel). This is
+the input and output of the count-output restoration network
+(:class:`rdnet.nn.models.RestoreNet` with ``output="counts"``); :func:`voxel_events`
+turns such a grid back into events too.
 """
 from __future__ import annotations
 
@@ -25,9 +32,17 @@ from rdnet.errors import ValidationError
 from rdnet.events.core import EVENT_DTYPE, Events
 
 
+POLARITY_MODES = ("signed", "split")
+
+
 def voxel_grid(events: Events, bins: int, t0_us: int, duration_us: int, *,
-               mode: str = "hard", normalize: str | None = None) -> np.ndarray:
-    """(bins, height, width) float32 voxel grid of the events in [t0, t0 + duration]."""
+               mode: str = "hard", normalize: str | None = None,
+               polarity: str = "signed") -> np.ndarray:
+    """(bins, height, width) float32 voxel grid of the events in [t0, t0 + duration];
+    with ``polarity="split"`` a (2, bins, height, width) grid of ON and OFF counts
+    (module docstring; ``normalize`` then scales both channels by one divisor)."""
+    if polarity not in POLARITY_MODES:
+        raise ValidationError("polarity", f"unknown polarity mode {polarity!r}; use 'signed' or 'split'")
     if bins < 1:
         raise ValidationError("bins", f"must be >= 1, got {bins}")
     if duration_us <= 0:
@@ -37,12 +52,18 @@ def voxel_grid(events: Events, bins: int, t0_us: int, duration_us: int, *,
     i0 = int(np.searchsorted(events.t, t0_us, "left"))
     i1 = int(np.searchsorted(events.t, t0_us + duration_us, "right"))
     a = events.array[i0:i1]
-    pol = a["p"].astype(np.float32) * 2.0 - 1.0
     pix = a["y"].astype(np.int64) * W + a["x"].astype(np.int64)
+    if polarity == "signed":
+        pol = a["p"].astype(np.float32) * 2.0 - 1.0
+        planes = 1
+    else:   # ON events to plane 0, OFF events to plane 1, each with weight 1
+        pol = np.ones(a.size, np.float32)
+        pix = pix + (a["p"] == 0).astype(np.int64) * (bins * H * W)
+        planes = 2
     # Integer arithmetic for the bin index: float (t - t0) / T * bins can fall just below
     # an exact bin boundary and put the event in the previous bin.
     dt = a["t"] - np.int64(t0_us)
-    size = bins * H * W
+    size = planes * bins * H * W
     if mode == "hard":
         b = np.minimum(dt * bins // duration_us, bins - 1)
         grid = np.bincount(b * (H * W) + pix, weights=pol, minlength=size)
@@ -55,7 +76,7 @@ def voxel_grid(events: Events, bins: int, t0_us: int, duration_us: int, *,
         grid += np.bincount(hi * (H * W) + pix, weights=pol * frac, minlength=size)
     else:
         raise ValidationError("mode", f"unknown voxel mode {mode!r}; use 'hard' or 'bilinear'")
-    grid = grid.reshape(bins, H, W).astype(np.float32)
+    grid = grid.reshape((bins, H, W) if planes == 1 else (2, bins, H, W)).astype(np.float32)
     return normalize_voxel(grid, normalize)
 
 
@@ -86,7 +107,10 @@ def voxel_events(grid: np.ndarray, t0_us: int, duration_us: int, *, mode: str = 
 
     ``grid`` (bins, height, width) holds signed counts (times ``1 / scale`` when it was
     normalised: ``scale`` is :func:`normalization_scale` of the raw grid). Each entry
-    becomes ``|round(v * scale)|`` events of polarity ``sign(v)``. ``mode="hard"`` spreads
+    becomes ``|round(v * scale)|`` events of polarity ``sign(v)``. A per-polarity grid
+    (2, bins, height, width) of non-negative ON/OFF counts (``polarity="split"`` of
+    :func:`voxel_grid`) gives ``round(v * scale)`` ON events per entry of plane 0 and OFF
+    events per entry of plane 1 (negative entries are a ValidationError). ``mode="hard"`` spreads
     the n events of bin k evenly over the bin's integer microseconds (exact inverse when
     ``duration_us >= bins``: every bin then holds at least one integer time);
     ``mode="bilinear"`` puts them at the bin's time
@@ -94,19 +118,25 @@ def voxel_events(grid: np.ndarray, t0_us: int, duration_us: int, *, mode: str = 
     column order for equal times) on a ``width`` x ``height`` sensor.
     """
     grid = np.asarray(grid)
-    if grid.ndim != 3:
-        raise ValidationError("voxel", f"expected (bins, height, width), got shape {grid.shape}")
+    split = grid.ndim == 4
+    if not (grid.ndim == 3 or (split and grid.shape[0] == 2)):
+        raise ValidationError("voxel", "expected (bins, height, width) or (2, bins, height, width), "
+                              f"got shape {grid.shape}")
     if duration_us <= 0:
         raise ValidationError("duration_us", f"must be > 0, got {duration_us}")
-    bins, H, W = grid.shape
+    bins, H, W = grid.shape[-3:]
     counts = np.rint(grid.astype(np.float64) * float(scale)).astype(np.int64).ravel()
+    if split:
+        if (counts < 0).any():
+            raise ValidationError("voxel", "a per-polarity (2, bins, H, W) grid holds negative counts")
+        counts[counts.size // 2:] *= -1                      # plane 1: OFF events, as negative counts
     nz = np.flatnonzero(counts)
     n = np.abs(counts[nz])
     idx = np.repeat(nz, n)                                   # one entry per event
     first = np.repeat(np.cumsum(n) - n, n)
     j = np.arange(idx.size, dtype=np.int64) - first          # event number inside its entry
     nn = np.repeat(n, n)
-    b = idx // (H * W)
+    b = (idx // (H * W)) % bins
     t0_us, duration_us = int(t0_us), int(duration_us)
     if mode == "hard":
         # the integer times of bin b: ceil(b T / bins) .. ceil((b + 1) T / bins) - 1 (last: .. T)

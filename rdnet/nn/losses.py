@@ -26,6 +26,16 @@ Extension ``empty_weight`` (not in the paper, default 0): weight of an extra L1 
 the voxels where both ``E_u`` and ``E_d`` are zero (pulls the restored voxel to zero
 there). A prototype found that this term hurts, hence off by default.
 
+Count output (not in the paper; ``train.restore_output: counts``,
+:class:`rdnet.nn.models.RestoreNet` with ``output="counts"``), per polarity voxel with
+occupancy logit ``z``, count given occupied ``mu`` and undegraded count ``u``::
+
+    L = occupancy_weight * mean_all BCE(z, [u > 0]) + alpha * masked L1(mu - u; u > 0)
+
+The occupancy term covers EVERY voxel, so a voxel without undegraded events is pushed to
+"empty" (the masked loss above leaves it free, which is why rounding the signed output
+invents events); ``mu`` is the count where events are, learnt only there.
+
 Deblurring (stage 2), paper Eq. (10): ``L_d = L1(I_d - I_s)`` (mean absolute error).
 """
 from __future__ import annotations
@@ -90,6 +100,26 @@ def restoration_loss(restored: torch.Tensor, undegraded: torch.Tensor, degraded:
     if empty_weight > 0:
         loss = loss + empty_weight * t["empty"]
     return loss
+
+
+def count_loss_terms(mu: torch.Tensor, logit: torch.Tensor, undegraded: torch.Tensor,
+                     ) -> dict[str, torch.Tensor]:
+    """Unweighted terms of the count-output loss (module docstring): ``occupancy`` (BCE
+    over every voxel) and ``count`` (L1 of mu where the undegraded voxel has events).
+    All tensors are per-polarity grids of one shape, e.g. (B, 2 * bins, H, W)."""
+    if mu.shape != undegraded.shape or logit.shape != undegraded.shape:
+        raise ValueError(f"shapes differ: mu {tuple(mu.shape)}, logit {tuple(logit.shape)}, "
+                         f"undegraded {tuple(undegraded.shape)}")
+    occupied = undegraded > 0
+    return {"occupancy": F.binary_cross_entropy_with_logits(logit, occupied.to(logit.dtype)),
+            "count": masked_l1(mu - undegraded, occupied)}
+
+
+def count_restoration_loss(mu: torch.Tensor, logit: torch.Tensor, undegraded: torch.Tensor,
+                           alpha: float = 0.5, occupancy_weight: float = 1.0) -> torch.Tensor:
+    """``occupancy_weight * occupancy + alpha * count`` (:func:`count_loss_terms`)."""
+    t = count_loss_terms(mu, logit, undegraded)
+    return occupancy_weight * t["occupancy"] + alpha * t["count"]
 
 
 def deblur_loss(pred: torch.Tensor, sharp: torch.Tensor) -> torch.Tensor:

@@ -1,7 +1,10 @@
 """RDNet and its baselines as torch modules, a size registry and :func:`build_model`.
 
 * :class:`RestoreNet` -- stage 1 of RDNet (event restoration): blurry image + degraded
-  voxels -> restored voxels (global residual on the voxels).
+  voxels -> restored voxels (global residual on the voxels). ``output="signed"`` is the
+  paper's signed voxel; ``output="counts"`` reads and writes per-polarity counts and
+  cannot invent events without evidence (see the class). ``image_channels=0`` is the
+  events-only restorer (no image branch; cameras without frames).
 * :class:`DeblurNet` -- stage 2 (deblurring): blurry image + voxels -> sharp image
   (global residual on the image). Alone it is the "DeblurNet" baseline (degraded events
   straight into the deblurring network); ``use_events=False`` drops the event branch and
@@ -53,25 +56,92 @@ def count_parameters(model: nn.Module, trainable_only: bool = False) -> int:
     return int(sum(p.numel() for p in model.parameters() if p.requires_grad or not trainable_only))
 
 
-class RestoreNet(nn.Module):
-    """Stage 1: restore degraded event voxels guided by the blurry image.
+#: RestoreNet outputs: the paper's signed voxel, or per-polarity counts with occupancy.
+RESTORE_OUTPUTS = ("signed", "counts")
+#: logit offset of the identity start of the occupancy head: sigmoid(+-4) = 0.982 / 0.018.
+OCCUPANCY_GAIN = 4.0
 
-    forward(image (B, C, H, W), voxel (B, bins, H, W)) -> restored voxel (B, bins, H, W).
-    Image features are added into the event branch at every scale; the output is
-    ``voxel + correction`` (global residual, see :mod:`rdnet.nn.stage`).
+
+class RestoreNet(nn.Module):
+    """Stage 1: restore degraded event voxels, guided by the blurry image (or events
+    only with ``image_channels=0``: ``image`` is then None).
+
+    ``output="signed"`` (the paper): forward(image (B, C, H, W), voxel (B, bins, H, W))
+    -> restored signed voxel (B, bins, H, W) = ``voxel + correction`` (global residual,
+    :mod:`rdnet.nn.stage`).
+
+    ``output="counts"``: the input is the per-polarity count grid (B, 2 * bins, H, W) (ON
+    counts of the bins, then OFF counts: ``voxel_grid(polarity="split")`` flattened) and
+    the network has two heads per polarity voxel (:meth:`heads`):
+
+    * occupancy logit ``z = o + 4 (2 [x > 0] - 1)``: the probability that the voxel holds
+      at least one undegraded event;
+    * count given occupied ``mu = max(max(x, 1) + r, 1)`` (>= 1).
+
+    ``o`` and ``r`` come from a zero-initialised output conv, so a fresh network is the
+    identity at the event level: ``p > 0.5`` exactly where the input has events and
+    ``mu = x`` there. forward returns the expected counts ``sigmoid(z) * mu`` (>= 0,
+    (B, 2 * bins, H, W)); :meth:`signed` turns counts into the signed voxel stage 2
+    reads. Events are made by a decision fitted after training
+    (:mod:`rdnet.nn.decision`): ``round(mu)`` events where ``sigmoid(z) >= threshold``,
+    none elsewhere -- an empty voxel gets events only when the network is confident
+    enough, and the losses (:func:`rdnet.nn.losses.count_restoration_loss`) constrain
+    every voxel.
     """
 
     def __init__(self, image_channels: int = 1, bins: int = 10, width: int = 16,
-                 enc_depths=(1, 1, 1, 1), middle_depth: int = 1, dec_depths=(1, 1, 1, 1)):
+                 enc_depths=(1, 1, 1, 1), middle_depth: int = 1, dec_depths=(1, 1, 1, 1),
+                 output: str = "signed"):
         super().__init__()
+        if output not in RESTORE_OUTPUTS:
+            raise ValueError(f"output must be one of {RESTORE_OUTPUTS}, got {output!r}")
         self.config = {"kind": "restore", "image_channels": int(image_channels), "bins": int(bins),
                        "width": int(width), "enc_depths": tuple(enc_depths),
                        "middle_depth": int(middle_depth), "dec_depths": tuple(dec_depths)}
-        self.net = StageNet(image_channels, bins, bins, width, enc_depths, middle_depth,
-                            dec_depths, fuse_into="event", residual=True)
+        if output != "signed":  # old checkpoints (signed) keep their config unchanged
+            self.config["output"] = output
+        self.output, self.bins, self.image_channels = output, int(bins), int(image_channels)
+        if output == "signed":
+            self.net = StageNet(image_channels, bins, bins, width, enc_depths, middle_depth,
+                                dec_depths, fuse_into="event", residual=True)
+        else:
+            self.net = StageNet(image_channels, 2 * bins, 4 * bins, width, enc_depths, middle_depth,
+                                dec_depths, fuse_into="event", residual=False)
+            nn.init.zeros_(self.net.ending.weight)   # identity start (class docstring)
+            nn.init.zeros_(self.net.ending.bias)
 
-    def forward(self, image: torch.Tensor, voxel: torch.Tensor) -> torch.Tensor:
-        return self.net(image, voxel)
+    @property
+    def in_channels(self) -> int:
+        """Event channels of the input: bins (signed) or 2 * bins (counts)."""
+        return self.bins if self.output == "signed" else 2 * self.bins
+
+    def heads(self, image: torch.Tensor | None, counts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(mu, logit), each (B, 2 * bins, H, W), of the counts output (class docstring)."""
+        if self.output != "counts":
+            raise ValueError("heads() exists for output='counts' only")
+        out = self.net(image, counts)
+        r, o = out[:, :2 * self.bins], out[:, 2 * self.bins:]
+        mu = (counts.clamp_min(1.0) + r).clamp_min(1.0)
+        logit = o + OCCUPANCY_GAIN * (2.0 * (counts > 0).to(o.dtype) - 1.0)
+        return mu, logit
+
+    def forward(self, image: torch.Tensor | None, voxel: torch.Tensor, return_heads: bool = False):
+        """The restored voxel (signed) or expected counts; ``return_heads=True`` (counts
+        output) returns ``(mu, logit)`` instead (through forward, so that wrappers such as
+        DistributedDataParallel see the call)."""
+        if self.output == "signed":
+            if return_heads:
+                raise ValueError("return_heads exists for output='counts' only")
+            return self.net(image, voxel)
+        mu, logit = self.heads(image, voxel)
+        return (mu, logit) if return_heads else torch.sigmoid(logit) * mu
+
+    def signed(self, restored: torch.Tensor) -> torch.Tensor:
+        """The signed voxel (B, bins, H, W) of an output of :meth:`forward` (ON - OFF for
+        counts; unchanged for the signed output)."""
+        if self.output == "signed":
+            return restored
+        return restored[:, :self.bins] - restored[:, self.bins:]
 
 
 class DeblurNet(nn.Module):
@@ -109,7 +179,12 @@ class DeblurNet(nn.Module):
 
 
 class RDNet(nn.Module):
-    """Both stages: forward(image, voxel) -> (restored_voxel, sharp_image)."""
+    """Both stages: forward(image, voxel) -> (restored_voxel, sharp_image).
+
+    ``voxel`` is stage 1's input (signed voxel, or per-polarity counts for a counts
+    RestoreNet); ``restored_voxel`` is always the signed voxel (B, bins, H, W) -- for the
+    counts output the expected ON minus OFF counts -- which is what stage 2 reads, so
+    DeblurNet's input (bins signed channels) is the same for both stage-1 outputs."""
 
     def __init__(self, restore: RestoreNet, deblur: DeblurNet):
         super().__init__()
@@ -123,7 +198,7 @@ class RDNet(nn.Module):
         self.config = {"kind": "rdnet", "restore": dict(restore.config), "deblur": dict(deblur.config)}
 
     def forward(self, image: torch.Tensor, voxel: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        restored = self.restore(image, voxel)
+        restored = self.restore.signed(self.restore(image, voxel))
         return restored, self.deblur(image, restored)
 
 
@@ -200,22 +275,33 @@ def match_deblurnet(target: int, image_channels: int, bins: int, arch: dict,
 
 
 def build_model(kind: str, size: str = "tiny", image_channels: int = 1, bins: int = 10,
-                **overrides) -> nn.Module:
+                restore_output: str = "signed", **overrides) -> nn.Module:
     """Build a model of ``kind`` (one of :data:`MODEL_KINDS`) and named ``size``.
+
+    ``restore_output``: the output of the stage-1 network (restore, rdnet):
+    :data:`RESTORE_OUTPUTS`. ``image_channels=0`` (restore only): events-only restorer.
 
     ``overrides`` replace architecture keys of the size (width, enc_depths, middle_depth,
     dec_depths). ``deblurnet_matched`` returns a :class:`DeblurNet` widened to the
     parameter count of the ``rdnet`` of the same size and overrides.
     """
     arch = _arch(size, overrides)
+    if restore_output not in RESTORE_OUTPUTS:
+        raise ConfigError("train.restore_output", f"unknown stage-1 output {restore_output!r}; "
+                          f"known: {', '.join(RESTORE_OUTPUTS)}")
+    if restore_output != "signed" and kind not in ("restore", "rdnet"):
+        raise ConfigError("train.restore_output", f"only restore and rdnet have a stage-1 output, not {kind!r}")
+    if image_channels == 0 and kind != "restore":
+        raise ConfigError("image_channels", f"only the restore network runs without images, not {kind!r}")
     if kind == "restore":
-        return RestoreNet(image_channels, bins, **arch)
+        return RestoreNet(image_channels, bins, output=restore_output, **arch)
     if kind == "deblur":
         return DeblurNet(image_channels, bins, **arch)
     if kind == "image_only":
         return DeblurNet(image_channels, bins, use_events=False, **arch)
     if kind == "rdnet":
-        return RDNet(RestoreNet(image_channels, bins, **arch), DeblurNet(image_channels, bins, **arch))
+        return RDNet(RestoreNet(image_channels, bins, output=restore_output, **arch),
+                     DeblurNet(image_channels, bins, **arch))
     if kind == "deblurnet_matched":
         with torch.device("meta"):
             target = count_parameters(build_model("rdnet", size, image_channels, bins, **overrides))

@@ -22,7 +22,9 @@ zero-initialised, so a fresh stage is exactly the identity on its receiving inpu
 Stage 2 (deblurring, ``fuse_into="image"``): event features go into the image branch,
 the decoder outputs the sharp image; residual on the blurry input.
 
-With ``event_channels=0`` there is no event branch (image-only NAFNet UNet baseline).
+With ``event_channels=0`` there is no event branch (image-only NAFNet UNet baseline);
+with ``image_channels=0`` there is no image branch (events-only restoration, for cameras
+without frames: ``fuse_into="event"``, the image argument of ``forward`` is None).
 
 Inputs of any size are padded at the bottom/right to a multiple of
 ``2**len(enc_depths)`` (images: edge replication; voxels: zeros = "no events") and the
@@ -87,15 +89,19 @@ class StageNet(nn.Module):
             raise ValueError(f"fuse_into must be 'image' or 'event', got {fuse_into!r}")
         if event_channels == 0 and fuse_into != "image":
             raise ValueError("without an event branch the decoder must read the image branch")
+        if image_channels == 0 and fuse_into != "event":
+            raise ValueError("without an image branch the decoder must read the event branch")
+        if image_channels == 0 and event_channels == 0:
+            raise ValueError("a stage needs an image or an event branch")
         recv_in = event_channels if fuse_into == "event" else image_channels
         if residual and recv_in != out_channels:
             raise ValueError(f"global residual needs out_channels == {recv_in}, got {out_channels}")
         self.image_channels, self.event_channels = image_channels, event_channels
         self.fuse_into, self.residual = fuse_into, residual
         self.levels = len(enc_depths)
-        self.image_branch = EncoderBranch(image_channels, width, enc_depths)
+        self.image_branch = EncoderBranch(image_channels, width, enc_depths) if image_channels else None
         self.event_branch = EncoderBranch(event_channels, width, enc_depths) if event_channels else None
-        c = self.image_branch.out_channels
+        c = self.receiving.out_channels
         self.middle = naf_stack(c, middle_depth)
         self.ups = nn.ModuleList()
         self.decoders = nn.ModuleList()
@@ -136,16 +142,26 @@ class StageNet(nn.Module):
         return [f[..., :-(-H // 2 ** i), :-(-W // 2 ** i)] for i, f in enumerate(feats)]
 
     # --- forward ----------------------------------------------------------------------
-    def forward(self, image: torch.Tensor, events: torch.Tensor | None = None) -> torch.Tensor:
-        if image.shape[1] != self.image_channels:
-            raise ValueError(f"expected {self.image_channels} image channels, got {image.shape[1]}")
-        H, W = image.shape[-2:]
-        img = self._pad(image, "replicate")
+    def forward(self, image: torch.Tensor | None, events: torch.Tensor | None = None) -> torch.Tensor:
+        if self.image_branch is None:
+            if image is not None:
+                raise ValueError("this stage has no image branch: pass image=None")
+            if events is None or events.shape[1] != self.event_channels:
+                got = None if events is None else events.shape[1]
+                raise ValueError(f"expected {self.event_channels} event channels, got {got}")
+            H, W = events.shape[-2:]
+            img = None
+        else:
+            if image is None or image.shape[1] != self.image_channels:
+                got = None if image is None else image.shape[1]
+                raise ValueError(f"expected {self.image_channels} image channels, got {got}")
+            H, W = image.shape[-2:]
+            img = self._pad(image, "replicate")
         if self.event_branch is not None:
             if events is None or events.shape[1] != self.event_channels:
                 got = None if events is None else events.shape[1]
                 raise ValueError(f"expected {self.event_channels} event channels, got {got}")
-            if events.shape[-2:] != image.shape[-2:]:
+            if image is not None and events.shape[-2:] != image.shape[-2:]:
                 raise ValueError(f"image {tuple(image.shape[-2:])} and events "
                                  f"{tuple(events.shape[-2:])} sizes differ")
             evt = self._pad(events, "constant")

@@ -12,7 +12,12 @@ blur (EDI model, Pan et al. CVPR 2019). The voxel grids are
 ``t0_us <= t <= t0_us + duration_us`` (paper Eq. 7 for ``mode='hard'``). Consecutive
 windows are separated by ``gap_frames`` unused sharp frames (0: back to back).
 
-The pairs file layout is the contract of DATA.md (``data/pairs/{split}.h5``).
+The pairs file layout is the contract of DATA.md (``data/pairs/{split}.h5``). Besides the
+signed voxels, the file holds the per-polarity count voxels ``voxel_{kind}_on`` /
+``voxel_{kind}_off`` (N, bins, H, W) (ON and OFF event counts per bin,
+``voxel_grid(..., polarity="split")``; ``voxel_{kind} == _on - _off`` in ``hard`` mode):
+the input and target of the count-output restoration network. They are optional for
+readers (files written before them stay readable; :data:`POLARITY_KEYS`).
 """
 from __future__ import annotations
 
@@ -37,7 +42,9 @@ log = logging.getLogger(__name__)
 DEGRADE_KEYS = tuple(f.name for f in fields(DegradeConfig))
 ARRAY_KEYS = ("blurry", "sharp", "voxel_undegraded", "voxel_degraded", "sequence", "t0_us",
               "duration_us", "level")
-_DTYPES = {"blurry": np.float32, "sharp": np.float32, "voxel_undegraded": np.float32,
+#: optional per-polarity count voxels (written by :func:`make_samples`; older files lack them).
+POLARITY_KEYS = ("voxel_undegraded_on", "voxel_undegraded_off", "voxel_degraded_on", "voxel_degraded_off")
+_DTYPES = {**{k: np.float32 for k in POLARITY_KEYS}, "blurry": np.float32, "sharp": np.float32, "voxel_undegraded": np.float32,
            "voxel_degraded": np.float32, "sequence": np.int32, "t0_us": np.int64,
            "duration_us": np.int64, "level": np.float64}
 
@@ -104,7 +111,8 @@ def make_samples(frames: Frames, ideal: Events, degraded: Events, cfg: BlurConfi
     """Blurry/sharp/voxel samples of one sequence (frames and events share a time base).
 
     Returns a dict of arrays with one row per blurry frame: ``blurry``/``sharp`` (N, C, H, W)
-    float32, ``voxel_undegraded``/``voxel_degraded`` (N, bins, H, W), ``sequence`` int32,
+    float32, ``voxel_undegraded``/``voxel_degraded`` (N, bins, H, W), their per-polarity
+    counts ``voxel_{undegraded,degraded}_{on,off}`` (N, bins, H, W), ``sequence`` int32,
     ``t0_us``/``duration_us`` int64, ``level`` float64 (``level`` if given, e.g.
     ``rdnet.sim.randomize.degradation_level``; else :func:`voxel_discrepancy`) and
     ``degrade``: {DegradeConfig key: (N,) float64} (the values the sequence was simulated
@@ -121,6 +129,7 @@ def make_samples(frames: Frames, ideal: Events, degraded: Events, cfg: BlurConfi
     out = {"blurry": np.empty((n, c, H, W), np.float32), "sharp": np.empty((n, c, H, W), np.float32),
            "voxel_undegraded": np.empty((n, bins, H, W), np.float32),
            "voxel_degraded": np.empty((n, bins, H, W), np.float32),
+           **{k: np.empty((n, bins, H, W), np.float32) for k in POLARITY_KEYS},
            "sequence": np.full(n, sequence, np.int32), "t0_us": np.empty(n, np.int64),
            "duration_us": np.empty(n, np.int64)}
     for j, (i0, k) in enumerate(wins):
@@ -132,8 +141,10 @@ def make_samples(frames: Frames, ideal: Events, degraded: Events, cfg: BlurConfi
         if dur <= 0:
             raise ValidationError("frames/t", f"window of {k} frames at frame {i0} has zero duration")
         out["t0_us"][j], out["duration_us"][j] = t0, dur
-        out["voxel_undegraded"][j] = voxel_grid(ideal, bins, t0, dur, mode=voxel_mode)
-        out["voxel_degraded"][j] = voxel_grid(degraded, bins, t0, dur, mode=voxel_mode)
+        for kind, ev in (("undegraded", ideal), ("degraded", degraded)):
+            out[f"voxel_{kind}"][j] = voxel_grid(ev, bins, t0, dur, mode=voxel_mode)
+            out[f"voxel_{kind}_on"][j], out[f"voxel_{kind}_off"][j] = voxel_grid(
+                ev, bins, t0, dur, mode=voxel_mode, polarity="split")
     if level is None:
         out["level"] = voxel_discrepancy(out["voxel_undegraded"], out["voxel_degraded"])
     else:
@@ -183,11 +194,18 @@ class PairsWriter:
         if missing:
             raise ValidationError("samples", f"missing {missing}")
         rows = {k: np.asarray(samples[k], _DTYPES[k]) for k in ARRAY_KEYS}
+        present = [k for k in POLARITY_KEYS if k in samples]
+        if present and len(present) != len(POLARITY_KEYS):
+            raise ValidationError("samples", f"per-polarity voxels incomplete: have {present}")
+        if self.n and bool(present) != (POLARITY_KEYS[0] in self._f):
+            raise ValidationError("samples", "per-polarity voxels present in some appends only")
+        rows.update({k: np.asarray(samples[k], _DTYPES[k]) for k in present})
         rows.update({f"degrade/{k}": np.asarray(samples["degrade"][k], np.float64) for k in DEGRADE_KEYS})
         for k, a in rows.items():
             if a.shape[0] != n:
                 raise ValidationError(k, f"{a.shape[0]} rows, expected {n}")
-        for k, ch in (("blurry", c), ("sharp", c), ("voxel_undegraded", b), ("voxel_degraded", b)):
+        for k, ch in (("blurry", c), ("sharp", c), ("voxel_undegraded", b), ("voxel_degraded", b),
+                      *((k, b) for k in present)):
             if rows[k].ndim != 4 or rows[k].shape[1] != ch:
                 raise ValidationError(k, f"expected (N, {ch}, H, W), got {rows[k].shape}")
         for k, a in rows.items():
@@ -237,7 +255,8 @@ class PairsFile:
     opened on the first ``__getitem__`` of each process and never pickled).
 
     ``ds[i]`` -> dict of numpy arrays: blurry, sharp, voxel_undegraded, voxel_degraded
-    (float32 (C|B, H, W)), sequence, t0_us, duration_us, level (scalars) and degrade
+    (float32 (C|B, H, W)), the per-polarity voxels when the file has them
+    (:data:`POLARITY_KEYS`), sequence, t0_us, duration_us, level (scalars) and degrade
     ({key: float}).
     """
 
@@ -255,6 +274,7 @@ class PairsFile:
                         raise FormatError(self.path, f"degrade/{k}", "missing dataset")
                 self.attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
                 self._len = int(f["blurry"].shape[0])
+                self.keys = ARRAY_KEYS + (POLARITY_KEYS if all(k in f for k in POLARITY_KEYS) else ())
                 for k in ARRAY_KEYS:
                     if f[k].shape[0] != self._len:
                         raise FormatError(self.path, k, f"{f[k].shape[0]} rows, blurry has {self._len}")
@@ -279,7 +299,7 @@ class PairsFile:
         if not 0 <= i < self._len:
             raise IndexError(f"sample {i} out of range (0..{self._len - 1})")
         f = self._file()
-        out = {k: f[k][i] for k in ARRAY_KEYS}
+        out = {k: f[k][i] for k in self.keys}
         out["degrade"] = {k: float(f[f"degrade/{k}"][i]) for k in DEGRADE_KEYS}
         return out
 

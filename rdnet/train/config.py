@@ -11,6 +11,9 @@ from typing import Literal, Optional
 from rdnet.config import positive
 from rdnet.errors import ConfigError
 
+#: train.restore_output -> RestoreNet output.
+RESTORE_OUTPUTS = {"signed_masked": "signed", "counts": "counts"}
+
 
 @dataclass(frozen=True)
 class TrainConfig:
@@ -27,6 +30,13 @@ class TrainConfig:
     voxel L1 term added in stage 2 (0 = the paper: stage 2 trains on L_d plus the
     feature term only); ``empty_weight``: weight of the L1 on voxels where neither
     E_u nor E_d has events (0 = the paper's mask).
+    ``restore_output``: stage-1 output and loss: ``signed_masked`` (the paper: a signed
+    voxel, L1 masked to where events are) or ``counts`` (per-polarity counts with an
+    occupancy head, loss on every voxel, :func:`rdnet.nn.losses.count_restoration_loss`;
+    ``alpha`` then weights the count L1 and ``occupancy_weight`` the occupancy BCE).
+    ``val_sequences``: the last sequences of the training file held out from stage-1
+    training (tasks restore, restore_events) to fit the voxel -> event decision
+    (:mod:`rdnet.nn.decision`); needed by ``counts`` (>= 1), 0 = train on every row.
     ``finetune_restore``: stage 2 also updates the stage-1 weights, at
     ``lr * restore_lr_scale``; false freezes them.
     ``seed``: model init, data order, crops; ``device``: cpu, cuda or auto (cuda when
@@ -49,6 +59,9 @@ class TrainConfig:
     beta: float = 0.5
     stage2_alpha: float = 0.0
     empty_weight: float = 0.0
+    restore_output: Literal["signed_masked", "counts"] = "signed_masked"
+    occupancy_weight: float = 1.0
+    val_sequences: int = 0
     finetune_restore: bool = True
     restore_lr_scale: float = 1.0
     seed: int = 0
@@ -58,6 +71,11 @@ class TrainConfig:
     log_every: int = 100
     ckpt_every: int = 1000
     dvclive: bool = True
+
+    @property
+    def model_output(self) -> str:
+        """The RestoreNet ``output`` of :attr:`restore_output` (signed or counts)."""
+        return RESTORE_OUTPUTS[self.restore_output]
 
     def __post_init__(self):
         for key in ("iterations", "batch_size", "log_every", "ckpt_every"):
@@ -69,8 +87,15 @@ class TrainConfig:
         if self.lr_min > self.lr:
             raise ConfigError("train.lr_min", f"{self.lr_min} is larger than train.lr = {self.lr}")
         for key in ("weight_decay", "grad_clip", "alpha", "beta", "stage2_alpha", "empty_weight",
-                    "restore_lr_scale", "num_workers", "threads", "seed"):
+                    "restore_lr_scale", "num_workers", "threads", "seed", "occupancy_weight",
+                    "val_sequences"):
             positive(f"train.{key}", getattr(self, key))
+        if self.restore_output not in RESTORE_OUTPUTS:
+            raise ConfigError("train.restore_output", f"must be one of {', '.join(RESTORE_OUTPUTS)}, "
+                              f"got {self.restore_output!r}")
+        if self.restore_output == "counts" and self.val_sequences < 1:
+            raise ConfigError("train.val_sequences", "restore_output counts fits its decision on held-out "
+                              "sequences: needs >= 1")
         if self.device not in ("cpu", "cuda", "auto"):
             raise ConfigError("train.device", f"must be cpu, cuda or auto, got {self.device!r}")
 

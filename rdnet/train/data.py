@@ -15,6 +15,16 @@ applied identically to the blurry and sharp images and to both voxel grids. A sp
 flip of the voxel grid keeps the polarity and the bin order: mirroring the scene mirrors
 where brightness changes happen, not their sign or time (a time reversal would swap the
 bins *and* negate the polarities; it is not used).
+
+Per-polarity counts: when the file holds ``voxel_{kind}_on``/``_off``
+(:data:`rdnet.sim.blur.POLARITY_KEYS`), samples also carry ``counts_undegraded`` and
+``counts_degraded`` (2 * bins, h, w): the ON counts of the bins, then the OFF counts
+(the input and target of the count-output RestoreNet). Files without them still load
+(``PairsInfo.has_counts`` is False).
+
+``rows`` restricts a dataset to some rows of the file (e.g. the training rows left after
+holding out validation sequences, :func:`split_rows`); crops and flips stay a function
+of the file row.
 """
 from __future__ import annotations
 
@@ -28,6 +38,7 @@ import torch
 from torch.utils.data import Dataset, Sampler
 
 from rdnet.errors import ConfigError, FormatError
+from rdnet.sim.blur import POLARITY_KEYS
 
 #: datasets every pairs file must hold: name -> number of dimensions.
 REQUIRED = {"blurry": 4, "sharp": 4, "voxel_undegraded": 4, "voxel_degraded": 4, "level": 1}
@@ -44,6 +55,7 @@ class PairsInfo:
     bins: int
     height: int
     width: int
+    has_counts: bool = False
 
 
 def read_pairs_info(path: str | Path) -> PairsInfo:
@@ -76,7 +88,35 @@ def read_pairs_info(path: str | Path) -> PairsInfo:
             raise FormatError(path, "bins", f"attribute {int(f.attrs['bins'])} != voxel bins {b}")
         if n == 0:
             raise FormatError(path, "blurry", "no samples")
-    return PairsInfo(n=int(n), channels=int(c), bins=int(b), height=int(h), width=int(w))
+        present = [k for k in POLARITY_KEYS if k in f]
+        if present and len(present) != len(POLARITY_KEYS):
+            raise FormatError(path, sorted(set(POLARITY_KEYS) - set(present))[0],
+                              "missing (the file has only some per-polarity voxels)")
+        for k in present:
+            if f[k].shape != (n, b, h, w):
+                raise FormatError(path, k, f"shape {f[k].shape}, expected {(n, b, h, w)}")
+    return PairsInfo(n=int(n), channels=int(c), bins=int(b), height=int(h), width=int(w),
+                     has_counts=bool(present))
+
+
+def split_rows(path: str | Path, val_sequences: int) -> tuple[np.ndarray, np.ndarray]:
+    """(train_rows, val_rows) of a pairs file: the rows of its last ``val_sequences``
+    sequences (column ``sequence``) are held out for validation; whole sequences, so no
+    validation window shares a recording with a training window."""
+    import h5py
+    info = read_pairs_info(path)
+    if val_sequences <= 0:
+        return np.arange(info.n), np.arange(0)
+    with h5py.File(path, "r") as f:
+        if "sequence" not in f:
+            raise FormatError(Path(path), "sequence", "missing dataset (needed to hold out validation sequences)")
+        seq = np.asarray(f["sequence"][...])
+    ids = np.unique(seq)
+    if ids.size <= val_sequences:
+        raise ConfigError("train.val_sequences", f"{val_sequences} validation sequences leave no "
+                          f"training sequence in {path} ({ids.size} sequences)")
+    val = np.isin(seq, ids[-val_sequences:])
+    return np.flatnonzero(~val), np.flatnonzero(val)
 
 
 def read_pairs_voxel(path: str | Path) -> dict:
@@ -114,13 +154,15 @@ class PairsDataset(Dataset):
     ``dataset[i]`` or ``dataset[(i, epoch)]`` returns ``blurry``/``sharp`` (C, h, w)
     float32, ``voxel_undegraded``/``voxel_degraded`` (B, h, w) float32, ``voxel`` (the
     network's input events: the ``events`` kind), ``level`` float64 scalar and ``index``
-    int64 scalar. ``crop`` (pixels, square; None = full frame) and flips are drawn from
-    ``(seed, epoch, index)`` (see :func:`draw_augment`); a crop larger than the frame
-    is an error.
+    int64 scalar (the file row), plus ``counts_undegraded``/``counts_degraded``
+    (2 * bins, h, w) when the file has per-polarity voxels. ``crop`` (pixels, square;
+    None = full frame) and flips are drawn from ``(seed, epoch, row)`` (see
+    :func:`draw_augment`); a crop larger than the frame is an error. ``rows``: the file
+    rows this dataset serves (default all); ``dataset[i]`` is file row ``rows[i]``.
     """
 
     def __init__(self, path: str | Path, events: str = "degraded", crop: int | None = None,
-                 augment: bool = False, *, seed: int = 0):
+                 augment: bool = False, *, seed: int = 0, rows=None):
         if events not in EVENT_KINDS:
             raise ConfigError("events", f"must be one of {list(EVENT_KINDS)}, got {events!r}")
         self.path = Path(path)
@@ -132,11 +174,14 @@ class PairsDataset(Dataset):
                 raise ConfigError("train.crop", f"{crop} is larger than the frames "
                                   f"({self.info.height}x{self.info.width}) of {self.path}")
         self.events, self.crop, self.augment, self.seed = events, crop, bool(augment), int(seed)
+        self.rows = np.arange(self.info.n) if rows is None else np.asarray(rows, np.int64)
+        if self.rows.size and (self.rows.min() < 0 or self.rows.max() >= self.info.n):
+            raise ConfigError("rows", f"row out of range [0, {self.info.n}) of {self.path}")
         self._file = None
         self._pid = None
 
     def __len__(self) -> int:
-        return self.info.n
+        return int(self.rows.size)
 
     # --- lazy per-process handle ------------------------------------------------------
     def _h5(self):
@@ -159,21 +204,25 @@ class PairsDataset(Dataset):
     # --- samples ----------------------------------------------------------------------
     def __getitem__(self, key) -> dict:
         index, epoch = (key if isinstance(key, tuple) else (key, 0))
-        index = int(index)
-        if not 0 <= index < self.info.n:
-            raise IndexError(f"sample {index} out of range [0, {self.info.n})")
+        if not 0 <= int(index) < len(self):
+            raise IndexError(f"sample {index} out of range [0, {len(self)})")
+        index = int(self.rows[int(index)])
         y0, x0, ch, cw, fh, fv = draw_augment(self.seed, epoch, index, self.info.height,
                                               self.info.width, self.crop, self.augment)
         f = self._h5()
         win = (index, slice(None), slice(y0, y0 + ch), slice(x0, x0 + cw))
         out = {}
-        for name in ("blurry", "sharp", "voxel_undegraded", "voxel_degraded"):
+        names = ("blurry", "sharp", "voxel_undegraded", "voxel_degraded")
+        for name in names + (POLARITY_KEYS if self.info.has_counts else ()):
             a = np.asarray(f[name][win], dtype=np.float32)
             if fh:
                 a = a[:, :, ::-1]
             if fv:
                 a = a[:, ::-1, :]
             out[name] = torch.from_numpy(np.ascontiguousarray(a))
+        if self.info.has_counts:
+            for kind in EVENT_KINDS:
+                out[f"counts_{kind}"] = torch.cat([out.pop(f"voxel_{kind}_on"), out.pop(f"voxel_{kind}_off")])
         out["voxel"] = out[f"voxel_{self.events}"]
         out["level"] = torch.tensor(float(f["level"][index]), dtype=torch.float64)
         out["index"] = torch.tensor(index, dtype=torch.int64)

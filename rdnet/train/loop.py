@@ -3,8 +3,15 @@
 Tasks (:data:`TASKS`) and their objectives (RDNet paper, Sec. 3.4):
 
 * ``restore`` -- stage 1, :class:`~rdnet.nn.models.RestoreNet` on (blurry, E_d) trained
-  towards E_u with the restoration loss ``alpha * |M (E_r - E_u)|_1`` (Eq. 8; M the
-  voxels where E_u or E_d has events, :func:`rdnet.nn.losses.restoration_loss`).
+  towards E_u. ``train.restore_output: signed_masked`` (the paper): signed voxels and
+  the restoration loss ``alpha * |M (E_r - E_u)|_1`` (Eq. 8; M the voxels where E_u or
+  E_d has events, :func:`rdnet.nn.losses.restoration_loss`). ``counts``: per-polarity
+  counts, occupancy BCE on every voxel + count L1
+  (:func:`rdnet.nn.losses.count_restoration_loss`); after training the voxel -> event
+  decision is fitted on the ``train.val_sequences`` held-out sequences
+  (:func:`fit_decision`) and stored in ``model.pt`` as ``extra["decision"]``.
+* ``restore_events`` -- the same without the image branch (events-only restorer for
+  cameras without frames; ``image_channels = 0``).
 * ``deblur`` / ``deblurnet_matched`` -- a :class:`~rdnet.nn.models.DeblurNet` on
   (blurry, E) with E the ``events`` kind (undegraded or degraded), trained with L_d
   (:func:`rdnet.nn.losses.deblur_loss`) towards the sharp frame.
@@ -12,7 +19,10 @@ Tasks (:data:`TASKS`) and their objectives (RDNet paper, Sec. 3.4):
 * ``rdnet`` -- stage 2: RDNet (stage 1 initialised from a stage-1 checkpoint,
   ``init_checkpoint``, and fine-tuned when ``train.finetune_restore``) trained on
   ``L_d + beta * |F(E_r) - F(E_u)|_1`` (Eq. 9; F the deblurring network's event
-  encoder) plus ``stage2_alpha`` times the masked voxel term (0 by default).
+  encoder) plus ``stage2_alpha`` times the masked voxel term (0 by default). With a
+  counts stage 1, stage 1 reads per-polarity counts and stage 2 the signed expected
+  counts (:class:`~rdnet.nn.models.RDNet`); model.pt carries the stage-1 checkpoint's
+  decision.
 
 Optimiser: Adam, cosine annealing from ``lr`` to ``lr_min`` over ``iterations`` steps
 (``CosineAnnealingLR(T_max=iterations, eta_min=lr_min)``, paper Sec. 4.1).
@@ -34,6 +44,7 @@ import logging
 from pathlib import Path
 from typing import Mapping
 
+import numpy as np
 import torch
 from torch import nn
 from torch.utils.data import DataLoader
@@ -42,16 +53,18 @@ from rdnet.config import to_dict
 from rdnet.errors import ConfigError, FormatError
 from rdnet.train import checkpoint as ckpt_mod
 from rdnet.train.config import ModelConfig, TrainConfig
-from rdnet.train.data import PairsDataset, StepSampler, read_pairs_voxel
+from rdnet.train.data import PairsDataset, StepSampler, read_pairs_voxel, split_rows
 from rdnet.train.distributed import DistInfo, dist_info, all_reduce_mean, barrier, replica_digests
 
 log = logging.getLogger(__name__)
 
 #: task -> network kind of :func:`rdnet.nn.models.build_model`.
-TASKS = {"restore": "restore", "deblur": "deblur", "deblurnet_matched": "deblurnet_matched",
-         "image_only": "image_only", "rdnet": "rdnet"}
+TASKS = {"restore": "restore", "restore_events": "restore", "deblur": "deblur",
+         "deblurnet_matched": "deblurnet_matched", "image_only": "image_only", "rdnet": "rdnet"}
 #: train keys that may change between a checkpoint and the run that resumes it.
 RESUME_FREE = ("log_every", "ckpt_every", "num_workers", "threads", "device", "dvclive")
+#: tasks trained on stage-1 rows only (validation sequences held out, decision fitted).
+RESTORE_TASKS = ("restore", "restore_events")
 
 
 def resolve_device(name: str, info: DistInfo | None = None) -> torch.device:
@@ -66,12 +79,19 @@ def resolve_device(name: str, info: DistInfo | None = None) -> torch.device:
     return torch.device("cpu")
 
 
-def model_args(task: str, model_cfg: ModelConfig, image_channels: int, bins: int) -> dict:
-    """Keyword arguments of ``build_model`` for ``task`` (stored in the checkpoint)."""
+def model_args(task: str, model_cfg: ModelConfig, image_channels: int, bins: int,
+               restore_output: str = "signed") -> dict:
+    """Keyword arguments of ``build_model`` for ``task`` (stored in the checkpoint).
+    ``restore_output`` (RestoreNet output, signed or counts) applies to the stage-1
+    tasks and rdnet; it is stored only when not signed (old checkpoints stay equal)."""
     if task not in TASKS:
         raise ConfigError("task", f"unknown task {task!r}; known: {', '.join(TASKS)}")
-    return {"kind": TASKS[task], "size": model_cfg.size, "image_channels": int(image_channels),
+    args = {"kind": TASKS[task], "size": model_cfg.size,
+            "image_channels": 0 if task == "restore_events" else int(image_channels),
             "bins": int(bins), **model_cfg.overrides()}
+    if restore_output != "signed" and task in RESTORE_TASKS + ("rdnet",):
+        args["restore_output"] = restore_output
+    return args
 
 
 def build_seeded(args: Mapping, seed: int) -> nn.Module:
@@ -86,12 +106,20 @@ def build_seeded(args: Mapping, seed: int) -> nn.Module:
 def compute_loss(task: str, model: nn.Module, batch: Mapping[str, torch.Tensor],
                  cfg: TrainConfig) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """(loss, detached components) of one batch for ``task`` (module docstring)."""
-    from rdnet.nn.losses import deblur_loss, restoration_loss
+    from rdnet.nn.losses import count_loss_terms, deblur_loss, restoration_loss
 
     blurry = batch["blurry"]
     net = ckpt_mod.unwrap(model)
-    if task == "restore":
-        restored = model(blurry, batch["voxel_degraded"])
+    counts = cfg.restore_output == "counts"
+    if task in RESTORE_TASKS:
+        image = None if task == "restore_events" else blurry
+        if counts:
+            mu, logit = model(image, batch["counts_degraded"], return_heads=True)
+            t = count_loss_terms(mu, logit, batch["counts_undegraded"])
+            loss = cfg.occupancy_weight * t["occupancy"] + cfg.alpha * t["count"]
+            return loss, {"loss": loss.detach(), "loss_occupancy": t["occupancy"].detach(),
+                          "loss_count": t["count"].detach()}
+        restored = model(image, batch["voxel_degraded"])
         loss = restoration_loss(restored, batch["voxel_undegraded"], batch["voxel_degraded"],
                                 alpha=cfg.alpha, empty_weight=cfg.empty_weight)
         return loss, {"loss": loss.detach()}
@@ -100,7 +128,7 @@ def compute_loss(task: str, model: nn.Module, batch: Mapping[str, torch.Tensor],
     elif task == "image_only":
         pred = model(blurry, None)
     elif task == "rdnet":
-        restored, pred = model(blurry, batch["voxel_degraded"])
+        restored, pred = model(blurry, batch["counts_degraded" if counts else "voxel_degraded"])
         ld = deblur_loss(pred, batch["sharp"])
         lr = restoration_loss(restored, batch["voxel_undegraded"], batch["voxel_degraded"],
                               alpha=cfg.stage2_alpha, feature_fn=net.deblur.event_features,
@@ -140,12 +168,83 @@ def make_optimizer(task: str, net: nn.Module, cfg: TrainConfig):
     return opt, sched
 
 
+def _median_window_us(path: str | Path, rows) -> int | None:
+    """Median exposure window (column ``duration_us``) of the training rows: the window
+    length a stage-1 network was trained for (None when the file has no such column)."""
+    import h5py
+    with h5py.File(path, "r") as f:
+        if "duration_us" not in f:
+            return None
+        d = np.asarray(f["duration_us"][...])[np.asarray(rows, np.int64)]
+    return int(np.median(d)) if d.size else None
+
+
+# --- the voxel -> event decision -------------------------------------------------------
+@torch.no_grad()
+def predict_counts(net: nn.Module, data: PairsDataset, device: torch.device, *, image: bool = True,
+                   batch_size: int = 8):
+    """Run a RestoreNet over every row of ``data`` (full frames): ``(mu, prob, target)``
+    per-polarity arrays (N, 2 * bins, H, W) for the counts output; for the signed output
+    ``(restored signed voxel, None, target signed voxel)``."""
+    net.eval()
+    counts = net.output == "counts"
+    outs, probs, targets = [], [], []
+    for i0 in range(0, len(data), batch_size):
+        rows = [data[i] for i in range(i0, min(len(data), i0 + batch_size))]
+        batch = {k: torch.stack([r[k] for r in rows]).to(device) for k in rows[0] if k not in ("level", "index")}
+        img = batch["blurry"] if image else None
+        if counts:
+            mu, logit = net(img, batch["counts_degraded"], return_heads=True)
+            outs.append(mu.cpu().numpy())
+            probs.append(torch.sigmoid(logit).cpu().numpy())
+            targets.append(batch["counts_undegraded"].cpu().numpy())
+        else:
+            outs.append(net(img, batch["voxel_degraded"]).cpu().numpy())
+            targets.append(batch["voxel_undegraded"].cpu().numpy())
+    cat = np.concatenate
+    return cat(outs), (cat(probs) if counts else None), cat(targets)
+
+
+def fit_decision(net: nn.Module, train_path: str | Path, val_rows, device: torch.device, *,
+                 image: bool = True) -> dict:
+    """The voxel -> event decision of a trained RestoreNet (``extra["decision"]``):
+    counts output -- the occupancy threshold fitted on the validation rows so that the
+    restored event count matches the undegraded one (:func:`rdnet.nn.decision.fit_threshold`);
+    signed output -- the paper's rounding. Both with the validation event metrics
+    (:func:`rdnet.nn.decision.match_counts`) of the decided events."""
+    from rdnet.nn.decision import decide_counts, decision_dict, fit_threshold, match_counts, split_signed
+    if len(val_rows) == 0:
+        if net.output == "counts":
+            raise ConfigError("train.val_sequences", "the counts decision needs validation rows")
+        return decision_dict(None, fitted_on="none")
+    data = PairsDataset(train_path, events="degraded", crop=None, augment=False, rows=val_rows)
+    try:
+        out, prob, target = predict_counts(net, data, device, image=image)
+    finally:
+        data.close()
+    info = {"fitted_on": f"{len(val_rows)} held-out training rows (train.val_sequences)",
+            "val_rows": int(len(val_rows))}
+    if net.output == "counts":
+        threshold = fit_threshold(out, prob, int(target.sum()))
+        restored = decide_counts(out, prob, threshold)
+        metrics = match_counts(restored, target)
+    else:
+        threshold = None
+        metrics = match_counts(split_signed(np.rint(out)), split_signed(target))
+    log.info("decision: threshold %s, validation %s", threshold, {k: round(v, 4) for k, v in metrics.items()})
+    return decision_dict(threshold, **info, val_metrics=metrics)
+
+
 # --- initialisation / resume ----------------------------------------------------------
 def _init_from(task: str, net: nn.Module, path: Path, args: Mapping) -> None:
     """Copy weights from ``init_checkpoint``: for ``rdnet`` a stage-1 (restore) or an
     rdnet checkpoint; otherwise a checkpoint of the same kind (fine-tuning)."""
     ck = ckpt_mod.read_checkpoint(path)
     kinds = ("restore", "rdnet") if task == "rdnet" else (args["kind"],)
+    if ck["model_args"].get("restore_output", "signed") != args.get("restore_output", "signed"):
+        raise FormatError(path, "model_args.restore_output",
+                          f"holds a {ck['model_args'].get('restore_output', 'signed')!r} stage-1 output, this run "
+                          f"trains {args.get('restore_output', 'signed')!r} (train.restore_output)")
     if ck["model_kind"] not in kinds:
         raise FormatError(path, "model_kind", f"holds a {ck['model_kind']!r} model; "
                           f"task {task!r} can start from {' or '.join(map(repr, kinds))}")
@@ -189,8 +288,9 @@ def _same_run(path: Path, ck: Mapping, task: str, args: Mapping, config: Mapping
         differ("task", ck["task"], task)
     if ck["model_args"] != ckpt_mod._plain(args):
         differ("model", ck["model_args"], ckpt_mod._plain(args))
-    for k, v in config.items():
-        if k not in RESUME_FREE and ck["config"].get(k) != v:
+    defaults = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
+    for k, v in config.items():  # a key added after the checkpoint was written: its default
+        if k not in RESUME_FREE and ck["config"].get(k, defaults.get(k)) != v:
             differ(f"train.{k}", ck["config"].get(k), v)
     for k in ("events", "pairs_shape"):
         if ck.get("extra", {}).get(k) != extra.get(k):
@@ -236,7 +336,7 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
         raise ConfigError("task", f"unknown task {task!r}; known: {', '.join(TASKS)}")
     if events not in ("undegraded", "degraded"):
         raise ConfigError("events", f"must be undegraded or degraded, got {events!r}")
-    if task in ("restore", "rdnet"):
+    if task in RESTORE_TASKS + ("rdnet",):
         events = "degraded"
     info = dist_info()
     device = resolve_device(cfg.device, info)
@@ -245,14 +345,25 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
     out_dir = Path(out_dir)
     last_path, final_path = out_dir / "last.pt", out_dir / "model.pt"
 
-    data = PairsDataset(train_path, events=events, crop=cfg.crop, augment=cfg.augment, seed=cfg.seed)
-    args = model_args(task, model_cfg, data.info.channels, data.info.bins)
+    rows, val_rows = split_rows(train_path, cfg.val_sequences if task in RESTORE_TASKS else 0)
+    data = PairsDataset(train_path, events=events, crop=cfg.crop, augment=cfg.augment, seed=cfg.seed,
+                        rows=rows)
+    counts = cfg.restore_output == "counts" and task in RESTORE_TASKS + ("rdnet",)
+    if counts and not data.info.has_counts:
+        raise FormatError(Path(train_path), "voxel_degraded_on", "train.restore_output counts needs the "
+                          "per-polarity voxels (pairs file written before they existed: rerun the blur step)")
+    args = model_args(task, model_cfg, data.info.channels, data.info.bins, cfg.model_output)
     config = to_dict(cfg)
     extra = {"events": events, "train_path": str(Path(train_path)),
              "init_checkpoint": None if init_checkpoint is None else str(init_checkpoint),
              "init_deblur": None if init_deblur is None else str(init_deblur),
-             "model_cfg": to_dict(model_cfg), "pairs_shape": dataclasses.asdict(data.info),
+             "model_cfg": to_dict(model_cfg),
+             # the shape only (has_counts is a property of the file, not of the run)
+             "pairs_shape": {k: v for k, v in dataclasses.asdict(data.info).items() if k != "has_counts"},
              "voxel": read_pairs_voxel(train_path)}
+    if task in RESTORE_TASKS:
+        extra["val_rows"] = [int(r) for r in val_rows]
+        extra["window_us"] = _median_window_us(train_path, rows)
 
     if resume and final_path.is_file() and not last_path.is_file():
         ck = ckpt_mod.read_checkpoint(final_path)
@@ -361,6 +472,11 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
 
     if stop < cfg.iterations:
         return last_path
+    if task in RESTORE_TASKS:
+        extra["decision"] = fit_decision(net, train_path, val_rows, device,
+                                         image=task != "restore_events") if main else None
+    elif task == "rdnet" and init_checkpoint is not None:
+        extra["decision"] = ckpt_mod.read_checkpoint(init_checkpoint).get("extra", {}).get("decision")
     save(final_path, step, full=False)
     if main and last_path.exists():
         last_path.unlink()

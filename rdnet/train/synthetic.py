@@ -9,7 +9,10 @@ counts of an ideal pixel with contrast threshold ``threshold``). The degraded vo
 drop each count with probability ``drop`` and add +-1 noise with probability
 ``noise``; ``drop``/``noise`` per sample grow with ``/level`` in [0, 1] and are stored
 as ``/degrade/refractory_us`` and ``/degrade/shot_noise_hz`` (proxies, all other
-DegradeConfig keys 0 or 1 for onoff_ratio).
+DegradeConfig keys 0 or 1 for onoff_ratio). ``noise_free=True`` writes degraded ==
+undegraded. With ``polarity=True`` (default) the per-polarity count voxels
+(``voxel_*_on``/``_off``: the positive and negative parts of the signed voxels) are
+written too.
 """
 from __future__ import annotations
 
@@ -34,7 +37,8 @@ def _smooth_texture(rng: np.random.Generator, channels: int, h: int, w: int) -> 
 
 def write_synthetic_pairs(path: str | Path, n: int = 8, *, channels: int = 1, bins: int = 4,
                           height: int = 32, width: int = 32, seed: int = 0, speed: float = 1.0,
-                          threshold: float = 0.2, eps: float = 0.01, split: str = "train") -> Path:
+                          threshold: float = 0.2, eps: float = 0.01, split: str = "train",
+                          noise_free: bool = False, polarity: bool = True) -> Path:
     """Write ``n`` synthetic samples to ``path`` (atomic, with
     :func:`rdnet.sim.blur.write_pairs`) and return the path."""
     from rdnet.sim.blur import write_pairs
@@ -57,7 +61,7 @@ def write_synthetic_pairs(path: str | Path, n: int = 8, *, channels: int = 1, bi
         vu[i] = np.round(np.diff(logi, axis=0) / threshold)
         drop = rng.random(vu[i].shape) < 0.5 * level[i]
         noise = (rng.random(vu[i].shape) < 0.05 * level[i]) * rng.choice([-1.0, 1.0], vu[i].shape)
-        vd[i] = np.where(drop, 0.0, vu[i]) + noise
+        vd[i] = vu[i] if noise_free else np.where(drop, 0.0, vu[i]) + noise
     degrade = {}
     for fl in fields(DegradeConfig):
         v = np.full(n, 1.0 if fl.name == "onoff_ratio" else 0.0)
@@ -70,5 +74,8 @@ def write_synthetic_pairs(path: str | Path, n: int = 8, *, channels: int = 1, bi
                "sequence": np.arange(n, dtype=np.int32) // 2,
                "t0_us": np.arange(n, dtype=np.int64) * 10000, "duration_us": np.full(n, 5000, np.int64),
                "level": level, "degrade": degrade}
+    if polarity:
+        for kind, v in (("undegraded", vu), ("degraded", vd)):
+            samples[f"voxel_{kind}_on"], samples[f"voxel_{kind}_off"] = np.maximum(v, 0), np.maximum(-v, 0)
     attrs = {"bins": bins, "voxel_mode": "hard", "channels": channels, "split": split}
     return write_pairs(path, [samples], attrs)

@@ -8,8 +8,8 @@ import pytest
 from rdnet.config import from_dict
 from rdnet.errors import ConfigError, FormatError, ValidationError
 from rdnet.events import Events, Frames
-from rdnet.sim.blur import (DEGRADE_KEYS, BlurConfig, PairsFile, blur_windows, make_samples, read_pairs,
-                            write_pairs)
+from rdnet.sim.blur import (DEGRADE_KEYS, POLARITY_KEYS, BlurConfig, PairsFile, blur_windows, make_samples,
+                            read_pairs, write_pairs)
 from rdnet.sim.settings import DegradeConfig
 
 H, W, N = 12, 10, 60
@@ -125,3 +125,26 @@ def test_pairs_errors(tmp_path):
         PairsFile(tmp_path / "junk.h5")
     with pytest.raises(ValidationError):
         make_samples(frames, Events.empty(W + 1, H), degr, BlurConfig(), 4, np.random.default_rng(0))
+
+
+def test_per_polarity_voxels_count_on_and_off_and_old_files_stay_readable(tmp_path):
+    frames, ideal, degr = _data()
+    s = make_samples(frames, ideal, degr, BlurConfig(min_frames=7, max_frames=9), bins=4,
+                     rng=np.random.default_rng(3))
+    for j in range(len(s["t0_us"])):
+        t0, t1 = s["t0_us"][j], s["t0_us"][j] + s["duration_us"][j]
+        for kind, ev in (("undegraded", ideal), ("degraded", degr)):
+            inside = ev.select((ev.t >= t0) & (ev.t <= t1))
+            np.testing.assert_array_equal(s[f"voxel_{kind}_on"][j].sum(0), inside.count_per_pixel(1))
+            np.testing.assert_array_equal(s[f"voxel_{kind}_off"][j].sum(0), inside.count_per_pixel(0))
+            np.testing.assert_array_equal(s[f"voxel_{kind}"][j],
+                                          s[f"voxel_{kind}_on"][j] - s[f"voxel_{kind}_off"][j])
+    attrs = {"bins": 4, "voxel_mode": "hard", "channels": 1, "split": "train"}
+    ds = read_pairs(write_pairs(tmp_path / "new.h5", [s], attrs))
+    np.testing.assert_array_equal(ds[1]["voxel_degraded_off"], s["voxel_degraded_off"][1])
+    old = {k: v for k, v in s.items() if k not in POLARITY_KEYS}     # a file written before them
+    ds = read_pairs(write_pairs(tmp_path / "old.h5", [old], attrs))
+    assert "voxel_degraded_on" not in ds[0] and ds[0]["voxel_degraded"].shape == (4, H, W)
+    part = dict(old, voxel_degraded_on=s["voxel_degraded_on"])
+    with pytest.raises(ValidationError, match="incomplete"):
+        write_pairs(tmp_path / "part.h5", [part], attrs)

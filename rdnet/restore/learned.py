@@ -1,0 +1,236 @@
+"""The learned event restorers (RDNet stage 1) behind ``rdnet restore --method rdnet``.
+
+Two networks, both :class:`rdnet.nn.models.RestoreNet` checkpoints (task ``restore`` /
+``restore_events`` of :mod:`rdnet.train.loop`):
+
+* ``rdnet-image`` -- image-guided: needs the frame of each window (``needs_frames``);
+* ``rdnet-events`` -- events only (no image branch), for cameras without frames.
+
+:func:`load_restorer` finds the checkpoint, in this order: the ``checkpoint`` argument
+(a ``model.pt`` file, or a folder holding ``model.pt`` or ``seed<k>/model.pt``, the
+lowest ``k`` first); the study's trained restorers as ``dvc repro`` writes them
+(:data:`STUDY_MODELS`, relative to the working directory); the small exported copies
+shipped as package data (``rdnet/restore/models/<name>.pt``). It logs which one it
+uses. Every checkpoint is validated (kind, voxel bins, frames): a mismatch is a
+ConfigError naming the file and the field.
+
+:meth:`LearnedRestorer.restore` voxelises one window ``[t0, t1)`` (per polarity for the
+count output, signed for the paper's output), runs the network, applies the decision
+stored in the checkpoint (:mod:`rdnet.nn.decision`: a fitted occupancy threshold, or
+rounding for the signed output) and turns the counts back into events
+(:func:`rdnet.events.voxel.voxel_events`), spread evenly inside each bin.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from rdnet.errors import ConfigError, FormatError, ValidationError
+from rdnet.events.core import Events
+from rdnet.events.voxel import voxel_events, voxel_grid
+
+log = logging.getLogger(__name__)
+
+#: the study's trained restorers (dvc repro outputs), by whether frames are available.
+STUDY_MODELS = {True: Path("models/restore_image"), False: Path("models/restore_events")}
+#: package-data names (rdnet/restore/models/<name>.pt), by whether frames are available.
+PACKAGE_MODELS = {True: "restore_image", False: "restore_events"}
+
+
+def _checkpoint_file(path: Path) -> Path | None:
+    """``path`` itself, ``path/model.pt`` or the lowest ``path/seed<k>/model.pt``."""
+    if path.is_file():
+        return path
+    if (path / "model.pt").is_file():
+        return path / "model.pt"
+    seeds = sorted((p for p in path.glob("seed*/model.pt") if p.parent.name[4:].isdigit()),
+                   key=lambda p: int(p.parent.name[4:]))
+    return seeds[0] if seeds else None
+
+
+def _package_file(name: str) -> Path | None:
+    from importlib import resources
+    try:
+        f = resources.files("rdnet.restore").joinpath("models", f"{name}.pt")
+    except (ModuleNotFoundError, FileNotFoundError):
+        return None
+    return Path(str(f)) if f.is_file() else None
+
+
+@dataclass
+class LearnedRestorer:
+    """A trained RestoreNet and its decision (structurally a
+    :class:`rdnet.restore.base.Restorer`)."""
+
+    name: str
+    needs_frames: bool
+    window_us: int | None
+    net: object
+    decision: dict
+    bins: int
+    mode: str
+    source: str
+    device: str = "cpu"
+
+    @property
+    def output(self) -> str:
+        return self.net.output
+
+    def _image(self, frame: np.ndarray, height: int, width: int):
+        from rdnet.deblur.pipeline import network_images
+        from rdnet.events.recording import Frames
+        im = np.asarray(frame)
+        if im.shape[:2] != (height, width):
+            raise ValidationError("frame", f"frame size {im.shape[:2]} (H, W) != sensor {(height, width)}")
+        one = Frames(im[None], np.zeros(1, np.int64), np.zeros(1, np.int64))
+        return network_images(one, self.net.image_channels)
+
+    def restore(self, events: Events, t0_us: int, t1_us: int, frame: np.ndarray | None) -> Events:
+        """Restored events of the window ``t0_us <= t < t1_us`` (``frame``: the window's
+        image, (H, W) or (H, W, 3), uint8 or linear float32; required when
+        ``needs_frames``, ignored otherwise)."""
+        import torch
+        from rdnet.nn.decision import decide_counts
+
+        t0_us, t1_us = int(t0_us), int(t1_us)
+        if t1_us <= t0_us:
+            raise ValidationError("window", f"t1_us {t1_us} must be after t0_us {t0_us}")
+        if self.needs_frames and frame is None:
+            raise ValidationError("frame", f"{self.name} needs the frame of each window")
+        H, W = events.height, events.width
+        ev = events.slice_time(t0_us, t1_us)            # half-open: back-to-back windows share nothing
+        dur = t1_us - t0_us
+        split = self.output == "counts"
+        grid = voxel_grid(ev, self.bins, t0_us, dur, mode=self.mode, polarity="split" if split else "signed")
+        x = torch.from_numpy(grid.reshape(1, -1, H, W)).to(self.device)
+        img = (torch.from_numpy(self._image(frame, H, W)).to(self.device)
+               if self.net.image_channels else None)
+        with torch.inference_mode():
+            if split:
+                mu, logit = self.net(img, x, return_heads=True)
+                counts = decide_counts(mu[0].cpu().numpy(), torch.sigmoid(logit)[0].cpu().numpy(),
+                                       float(self.decision["threshold"]))
+                out = counts.reshape(2, self.bins, H, W)
+            else:
+                out = self.net(img, x)[0].cpu().numpy()
+        restored = voxel_events(out, t0_us, dur, mode=self.mode)
+        # an event at exactly t1 (last bin closed on the right) belongs to the next window
+        return restored.slice_time(t0_us, t1_us) if len(restored) and restored.t[-1] >= t1_us else restored
+
+
+def _fail(path: Path, field: str, msg: str) -> ConfigError:
+    return ConfigError("checkpoint", f"{path}: {field}: {msg}")
+
+
+def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapping | None = None,
+                             device: str = "cpu", source: str | None = None) -> LearnedRestorer:
+    """A :class:`LearnedRestorer` from one checkpoint file, validated (module docstring)."""
+    from rdnet.nn.decision import read_decision
+    from rdnet.train import checkpoint as ckpt_mod
+
+    path = Path(path)
+    try:
+        ck = ckpt_mod.read_checkpoint(path)
+    except FormatError as e:
+        raise ConfigError("checkpoint", str(e)) from None
+    if ck["model_kind"] != "restore":
+        raise _fail(path, "model_kind", f"holds a {ck['model_kind']!r} model ({ck['task']}); "
+                    "a restorer is a 'restore' checkpoint (task restore or restore_events)")
+    args, extra = ck["model_args"], ck.get("extra", {})
+    bins = int(args.get("bins", 0))
+    voxel = extra.get("voxel") or {}
+    want = (params or {}).get("voxel", {}) if isinstance(params, Mapping) else {}
+    if want.get("bins") is not None and int(want["bins"]) != bins:
+        raise _fail(path, "model_args.bins", f"the network reads {bins} voxel bins, params voxel.bins is {want['bins']}")
+    if voxel.get("normalize"):
+        raise _fail(path, "extra.voxel.normalize", f"trained on {voxel['normalize']!r}-normalised voxels; "
+                    "restorers read raw counts")
+    image_channels = int(args.get("image_channels", 1))
+    if image_channels and not has_frames:
+        raise _fail(path, "model_args.image_channels", "an image-guided restorer needs frames and the "
+                    "recording has none: use an events-only restorer (task restore_events)")
+    try:
+        net = ckpt_mod.model_from_checkpoint(path, ck, device)
+    except FormatError as e:
+        raise ConfigError("checkpoint", str(e)) from None
+    net.eval()
+    try:
+        decision = read_decision(extra.get("decision"), net.output)
+    except ValidationError as e:
+        raise _fail(path, "extra.decision", str(e)) from None
+    name = "rdnet-image" if image_channels else "rdnet-events"
+    window = extra.get("window_us")
+    return LearnedRestorer(name=name, needs_frames=bool(image_channels),
+                           window_us=None if window is None else int(window), net=net, decision=decision,
+                           bins=bins, mode=str(voxel.get("mode") or "hard"), source=source or str(path),
+                           device=str(device))
+
+
+def load_restorer(checkpoint: str | Path | None, *, has_frames: bool, params: Mapping,
+                  device: str = "cpu") -> LearnedRestorer:
+    """The learned restorer to use (module docstring for the search order)."""
+    if checkpoint is not None:
+        path = Path(checkpoint)
+        f = _checkpoint_file(path)
+        if f is None:
+            raise ConfigError("checkpoint", f"{path}: no model.pt (nor seed<k>/model.pt) found")
+        r = restorer_from_checkpoint(f, has_frames=has_frames, params=params, device=device)
+        log.info("restorer %s from %s", r.name, f)
+        return r
+    # image-guided when the recording has frames; events-only otherwise (or as fallback)
+    for frames in ((True, False) if has_frames else (False,)):
+        f = _checkpoint_file(STUDY_MODELS[frames]) if STUDY_MODELS[frames].exists() else None
+        if f is not None:
+            r = restorer_from_checkpoint(f, has_frames=has_frames, params=params, device=device,
+                                         source=f"study model {f}")
+            log.info("restorer %s: the study's trained model %s", r.name, f)
+            return r
+    for frames in ((True, False) if has_frames else (False,)):
+        f = _package_file(PACKAGE_MODELS[frames])
+        if f is not None:
+            r = restorer_from_checkpoint(f, has_frames=has_frames, params=params, device=device,
+                                         source=f"package model {PACKAGE_MODELS[frames]}")
+            log.info("restorer %s: the packaged model %s (no study model under %s)", r.name, f,
+                     STUDY_MODELS[frames].parent)
+            return r
+    raise ConfigError("checkpoint", "no trained restorer: give --checkpoint, run `dvc repro` "
+                      f"(writes {STUDY_MODELS[has_frames]}) or install rdnet with its packaged models")
+
+
+def export_restorer(checkpoint: str | Path, out_dir: str | Path, *, has_frames: bool,
+                    metrics: Mapping | None = None) -> Path:
+    """Copy a trained restorer to ``out_dir/<name>.pt`` (``name`` from
+    :data:`PACKAGE_MODELS`, e.g. the package folder ``rdnet/restore/models``) with
+    ``<name>.json``: its model arguments, training config, decision and ``metrics``.
+    The checkpoint is validated first (:func:`restorer_from_checkpoint`); both files are
+    written atomically."""
+    import json
+    import shutil
+
+    from rdnet.eval.report import write_text_atomic
+    from rdnet.events.io._common import atomic_output
+    from rdnet.train import checkpoint as ckpt_mod
+
+    src = _checkpoint_file(Path(checkpoint))
+    if src is None:
+        raise ConfigError("checkpoint", f"{checkpoint}: no model.pt (nor seed<k>/model.pt) found")
+    r = restorer_from_checkpoint(src, has_frames=True)
+    if r.needs_frames != has_frames:
+        raise _fail(src, "model_args.image_channels", f"is {'image-guided' if r.needs_frames else 'events-only'}, "
+                    f"exported as the {'image-guided' if has_frames else 'events-only'} model")
+    ck = ckpt_mod.read_checkpoint(src)
+    name = PACKAGE_MODELS[has_frames]
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with atomic_output(out_dir / f"{name}.pt") as tmp:
+        shutil.copyfile(src, tmp)
+    card = {"name": r.name, "source": str(src), "task": ck["task"], "step": ck.get("step"),
+            "model_args": ck["model_args"], "train": ck["config"], "decision": r.decision,
+            "window_us": r.window_us, "voxel": ck.get("extra", {}).get("voxel"),
+            "metrics": dict(metrics or {})}
+    write_text_atomic(out_dir / f"{name}.json", json.dumps(card, indent=2, sort_keys=True, default=str) + "\n")
+    return out_dir / f"{name}.pt"

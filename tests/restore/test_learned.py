@@ -1,0 +1,105 @@
+"""rdnet.restore.learned: checkpoints found and validated (ConfigError naming the file
+and field), an identity restorer passes a stream through unchanged, windows are
+half-open."""
+import numpy as np
+import pytest
+import torch
+
+from rdnet.errors import ConfigError
+from rdnet.events import Events
+from rdnet.events.voxel import voxel_grid
+from rdnet.nn.decision import decision_dict
+from rdnet.restore.learned import load_restorer
+from rdnet.train.checkpoint import make_checkpoint, save_checkpoint
+from rdnet.train.loop import build_seeded
+
+torch.set_num_threads(1)
+PARAMS = {"voxel": {"bins": 3, "mode": "hard", "normalize": None}}
+W, H = 20, 12
+
+
+def _save(path, kind="restore", image_channels=0, output="counts", decision=0.5, bins=3):
+    args = {"kind": kind, "size": "tiny", "image_channels": image_channels, "bins": bins, "width": 4}
+    if output != "signed":
+        args["restore_output"] = output
+    net = build_seeded(args, 0)
+    extra = {"voxel": {"bins": bins, "mode": "hard", "normalize": None}, "window_us": 30000}
+    if decision is not None:
+        extra["decision"] = decision_dict(decision)
+    save_checkpoint(path, make_checkpoint(net, kind, args, step=1, extra=extra, with_rng=False))
+    return path
+
+
+def _events(seed=0, n=300):
+    rng = np.random.default_rng(seed)
+    t = np.sort(rng.integers(0, 60000, n))
+    t[-1] = 30000                                       # on the window boundary
+    return Events.from_columns(t, rng.integers(0, W, n), rng.integers(0, H, n), rng.integers(0, 2, n),
+                               W, H, sort=True)
+
+
+def test_identity_restorer_passes_the_stream_through(tmp_path):
+    r = load_restorer(_save(tmp_path / "m" / "seed0" / "model.pt"), has_frames=False, params=PARAMS)
+    assert (r.name, r.needs_frames, r.window_us) == ("rdnet-events", False, 30000)
+    ev = _events()
+    out = r.restore(ev, 0, 30000, None)
+    inside = ev.slice_time(0, 30000)
+    assert len(out) == len(inside) and out.t.max() < 30000          # half-open window
+    np.testing.assert_array_equal(voxel_grid(out, 3, 0, 30000, polarity="split"),
+                                  voxel_grid(inside, 3, 0, 30000, polarity="split"))
+    # a folder with seed<k>/model.pt is found too
+    assert load_restorer(tmp_path / "m", has_frames=True, params=PARAMS).name == "rdnet-events"
+
+
+def test_image_guided_restorer_needs_frames_and_reads_one(tmp_path):
+    path = _save(tmp_path / "img.pt", image_channels=1)
+    with pytest.raises(ConfigError, match=r"img\.pt.*image_channels.*needs frames"):
+        load_restorer(path, has_frames=False, params=PARAMS)
+    r = load_restorer(path, has_frames=True, params=PARAMS)
+    assert r.name == "rdnet-image" and r.needs_frames
+    ev = _events(1)
+    frame = np.full((H, W), 128, np.uint8)
+    assert len(r.restore(ev, 0, 30000, frame)) == len(ev.slice_time(0, 30000))
+
+
+def test_wrong_checkpoints_are_config_errors_naming_file_and_field(tmp_path):
+    with pytest.raises(ConfigError, match=r"deb\.pt.*model_kind"):
+        load_restorer(_save(tmp_path / "deb.pt", kind="deblur", image_channels=1, output="signed",
+                            decision=None), has_frames=True, params=PARAMS)
+    with pytest.raises(ConfigError, match=r"b4\.pt.*bins"):
+        load_restorer(_save(tmp_path / "b4.pt", bins=4), has_frames=False, params=PARAMS)
+    with pytest.raises(ConfigError, match=r"nodec\.pt.*decision"):
+        load_restorer(_save(tmp_path / "nodec.pt", decision=None), has_frames=False, params=PARAMS)
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ConfigError, match="junk.pt"):
+        load_restorer(tmp_path / "junk.pt", has_frames=False, params=PARAMS)
+    with pytest.raises(ConfigError, match="no model.pt"):
+        load_restorer(tmp_path / "empty_dir_missing", has_frames=False, params=PARAMS)
+
+
+def test_signed_restorer_rounds(tmp_path):
+    r = load_restorer(_save(tmp_path / "s.pt", output="signed", decision=None), has_frames=False, params=PARAMS)
+    ev = _events(2)
+    out = r.restore(ev, 0, 30000, None)            # fresh signed net = identity on signed voxels
+    np.testing.assert_array_equal(voxel_grid(out, 3, 0, 30000), voxel_grid(ev.slice_time(0, 30000), 3, 0, 30000))
+
+
+def test_export_writes_model_and_card_and_package_fallback_reads_it(tmp_path, monkeypatch):
+    import json
+    from rdnet.restore import learned
+    from rdnet.restore.learned import export_restorer
+    src = _save(tmp_path / "src" / "model.pt")
+    out = export_restorer(tmp_path / "src", tmp_path / "pkg", has_frames=False, metrics={"f1": 0.5})
+    card = json.loads((tmp_path / "pkg" / "restore_events.json").read_text())
+    assert out.name == "restore_events.pt" and card["decision"]["threshold"] == 0.5 and card["metrics"] == {"f1": 0.5}
+    with pytest.raises(ConfigError, match="events-only"):
+        export_restorer(src, tmp_path / "pkg2", has_frames=True)
+    # no study model in the working directory: the packaged model is used
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(learned, "_package_file", lambda name: tmp_path / "pkg" / f"{name}.pt"
+                        if (tmp_path / "pkg" / f"{name}.pt").is_file() else None)
+    r = load_restorer(None, has_frames=True, params=PARAMS)       # falls back to events-only
+    assert r.name == "rdnet-events" and r.source.startswith("package model")
+    (tmp_path / "models" / "restore_events").mkdir(parents=True)
+    _save(tmp_path / "models" / "restore_events" / "model.pt")
+    assert load_restorer(None, has_frames=False, params=PARAMS).source.startswith("study model")

@@ -1,0 +1,84 @@
+"""Training the count-output restorer: the decision is fitted on held-out sequences and
+stored in model.pt; a noise-free stream passes through; the paper's signed/masked
+option, the events-only task and an RDNet on a counts stage 1 still train."""
+import h5py
+import numpy as np
+import pytest
+
+from rdnet.errors import ConfigError, FormatError
+from rdnet.train.checkpoint import read_checkpoint
+from rdnet.train.config import ModelConfig, TrainConfig
+from rdnet.train.data import PairsDataset, split_rows
+from rdnet.train.loop import train
+from rdnet.train.synthetic import write_synthetic_pairs
+
+TINY = ModelConfig(size="tiny", width=4)
+CFG = dict(iterations=6, batch_size=4, crop=16, device="cpu", log_every=3, ckpt_every=100,
+           dvclive=False, seed=1, lr=1e-3)
+COUNTS = TrainConfig(**CFG, restore_output="counts", val_sequences=2)
+
+
+@pytest.fixture(scope="module")
+def noisy(tmp_path_factory):
+    return write_synthetic_pairs(tmp_path_factory.mktemp("p") / "train.h5", n=10, bins=3,
+                                 height=24, width=24, seed=4)
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory):
+    return write_synthetic_pairs(tmp_path_factory.mktemp("p") / "clean.h5", n=10, bins=3,
+                                 height=24, width=24, seed=5, noise_free=True)
+
+
+def test_dataset_serves_per_polarity_counts_and_holds_out_whole_sequences(noisy):
+    ds = PairsDataset(noisy, crop=None)
+    s = ds[0]
+    assert s["counts_degraded"].shape == (6, 24, 24) and (s["counts_degraded"] >= 0).all()
+    np.testing.assert_array_equal((s["counts_degraded"][:3] - s["counts_degraded"][3:]).numpy(),
+                                  s["voxel_degraded"].numpy())
+    tr, va = split_rows(noisy, 2)                       # sequences are row // 2: 0..4
+    assert tr.tolist() == list(range(6)) and va.tolist() == [6, 7, 8, 9]
+    sub = PairsDataset(noisy, crop=None, rows=va)
+    assert len(sub) == 4 and int(sub[0]["index"]) == 6
+    with pytest.raises(ConfigError, match="val_sequences"):
+        split_rows(noisy, 5)
+
+
+def test_noise_free_stream_passes_through_and_decision_is_stored(clean, tmp_path):
+    path = train("restore", COUNTS, TINY, clean, tmp_path / "r", progress=False)
+    ck = read_checkpoint(path)
+    d = ck["extra"]["decision"]
+    assert d["rule"] == "occupancy_threshold" and 0 < d["threshold"] <= 1
+    assert ck["extra"]["val_rows"] == [6, 7, 8, 9] and ck["model_args"]["restore_output"] == "counts"
+    assert ck["extra"]["window_us"] == 5000
+    m = d["val_metrics"]                  # decided events on the held-out rows == undegraded
+    assert m["precision"] == 1.0 and m["recall"] == 1.0 and m["count_ratio"] == 1.0
+
+
+def test_signed_masked_option_events_only_and_rdnet_on_counts(noisy, tmp_path):
+    signed = train("restore", TrainConfig(**CFG, val_sequences=1), TINY, noisy, tmp_path / "s", progress=False)
+    ck = read_checkpoint(signed)
+    assert "restore_output" not in ck["model_args"] and ck["extra"]["decision"]["rule"] == "round"
+    assert 0 < ck["extra"]["decision"]["val_metrics"]["f1"] <= 1
+    ev = train("restore_events", COUNTS, TINY, noisy, tmp_path / "e", progress=False)
+    ck = read_checkpoint(ev)
+    assert ck["model_args"]["image_channels"] == 0 and ck["extra"]["decision"]["threshold"] > 0
+    r = train("restore", COUNTS, TINY, noisy, tmp_path / "c", progress=False)
+    rd = train("rdnet", COUNTS, TINY, noisy, tmp_path / "rd", init_checkpoint=r, progress=False)
+    ck = read_checkpoint(rd)
+    assert ck["extra"]["decision"] == read_checkpoint(r)["extra"]["decision"]
+    with pytest.raises(FormatError, match="restore_output"):   # a signed stage 1 for a counts RDNet
+        train("rdnet", COUNTS, TINY, noisy, tmp_path / "rd2", init_checkpoint=signed, progress=False)
+
+
+def test_counts_needs_per_polarity_voxels_and_validation(tmp_path):
+    old = write_synthetic_pairs(tmp_path / "old.h5", n=6, bins=3, height=24, width=24, polarity=False)
+    with h5py.File(old) as f:
+        assert "voxel_degraded_on" not in f
+    assert PairsDataset(old).info.has_counts is False
+    with pytest.raises(FormatError, match="voxel_degraded_on"):
+        train("restore", COUNTS, TINY, old, tmp_path / "x", progress=False)
+    with pytest.raises(ConfigError, match="val_sequences"):
+        TrainConfig(restore_output="counts", val_sequences=0)
+    with pytest.raises(ConfigError, match="restore_output"):
+        TrainConfig(restore_output="signed")
