@@ -192,6 +192,12 @@ def luminance(images: np.ndarray) -> np.ndarray:
     return images.astype(np.float32, copy=False)
 
 
+def _log_luminance(frame: np.ndarray, log_eps: float, *, color: bool) -> np.ndarray:
+    """``log(Y + eps)`` of one frame (H, W[, 3]), as :func:`step_sizes` computes it."""
+    y = frame @ _LUMA if color else frame
+    return np.log(y.astype(np.float32) + np.float32(log_eps))
+
+
 def step_sizes(chain: np.ndarray, log_eps: float, *, color: bool) -> np.ndarray:
     """(K - 1, H, W) float32 ``|log(Y_{k+1} + eps) - log(Y_k + eps)|`` along a
     (K, H, W[, 3]) chain of frames (Y = luminance)."""
@@ -401,22 +407,23 @@ def interpolate_pair(f0: np.ndarray, f1: np.ndarray, n_inserted: int,
 
 
 def _adaptive(pi: PairInterpolator, cap: int, log_eps: float, cfg: InterpolateConfig,
-              stats: list[UpsampleStats]) -> tuple[np.ndarray, np.ndarray | None]:
+              stats: list[UpsampleStats]) -> tuple[np.ndarray, np.ndarray | None, float | None]:
     """Inserted frames for one pair, count chosen so the measured criterion <= bound (at
-    most ``cap``), and the step sizes of the final chain (None when not measured)."""
+    most ``cap``), the step sizes of the final chain and their criterion (None when not
+    measured)."""
     bound = cfg.max_log_step
     if cap <= 0:
-        return np.empty((0,) + pi.f0.shape, np.float32), None
+        return np.empty((0,) + pi.f0.shape, np.float32), None, None
     n = min(cap, max(0, math.ceil(pi.motion_estimate(log_eps, cfg.pixel_quantile) / bound) - 1))
     while True:
         mid = pi.frames(n)
         if not cfg.verify:
-            return mid, None
+            return mid, None, None
         chain = np.concatenate([pi.f0[None], mid, pi.f1[None]])
         steps = step_sizes(chain, log_eps, color=pi.color)
         m = criterion(steps, cfg.pixel_quantile)
         if m <= bound or n >= cap:
-            return mid, steps
+            return mid, steps, m
         k = n + 1
         # steps scale ~linearly with the measured step; grow by at least 1.5x
         new_steps = max(math.ceil(k * m / bound * 1.05), math.ceil(k * 1.5), k + 1)
@@ -505,14 +512,17 @@ def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = Inte
         yield _as_float(images[:1]), t_us[:1].copy()
         return
     color = images.ndim == 4
+    quantile = 1.0 if cfg.fill_log else cfg.pixel_quantile
+    next_f0 = prev_log = None
     for i in range(n - 1):
-        f0, f1 = _as_float(images[i]), _as_float(images[i + 1])
+        f0 = _as_float(images[i]) if next_f0 is None else next_f0
+        f1 = next_f0 = _as_float(images[i + 1])
         dt = int(t_us[i + 1] - t_us[i])
         cap = min(cfg.max_upsample - 1, dt - 1)
-        if cfg.method == "none":
-            mid, steps = np.empty((0,) + f0.shape, np.float32), None
+        if cfg.method == "none" or cap <= 0:
+            mid, steps, crit = np.empty((0,) + f0.shape, np.float32), None, None
         else:
-            mid, steps = _adaptive(PairInterpolator(f0, f1, cfg), cap, eps, cfg, sts)
+            mid, steps, crit = _adaptive(PairInterpolator(f0, f1, cfg), cap, eps, cfg, sts)
         k = mid.shape[0]
         t_mid = t_us[i] + np.rint(np.arange(1, k + 1) * (dt / (k + 1))).astype(np.int64)
         chain = np.concatenate([f0[None], mid, f1[None]])
@@ -522,9 +532,18 @@ def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = Inte
             chain, times, filled = fill_log(chain, times, eps, bound)
             if filled:
                 steps = None
+        log1 = None
         if steps is None:
-            steps = step_sizes(chain, eps, color=color)
-        crit = criterion(steps, 1.0 if cfg.fill_log else cfg.pixel_quantile)
+            crit = None
+            if chain.shape[0] == 2:   # nothing inserted: the step of the pair, f0's log kept from the last pair
+                log1 = _log_luminance(f1, eps, color=color)
+                log0 = prev_log if prev_log is not None else _log_luminance(f0, eps, color=color)
+                steps = np.abs(log1 - log0)[None]
+            else:
+                steps = step_sizes(chain, eps, color=color)
+        prev_log = log1
+        if crit is None or cfg.fill_log:
+            crit = criterion(steps, quantile)
         for st in sts:
             st._record(steps, bound, crit, chain.shape[0] - 2, filled)
         last = i == n - 2
