@@ -76,6 +76,9 @@ class InterpolateConfig:
     ``method``: 'flow' (optical-flow warping), 'linear' (blending) or 'none'.
     ``flow``: optical-flow algorithm, 'dis' (cv2.DISOpticalFlow) or 'farneback'.
     ``dis_preset``: DIS speed/quality preset ('ultrafast', 'fast', 'medium').
+    ``dis_finest_scale``: finest pyramid level DIS computes the flow on (None: the
+    preset's; medium uses 1, i.e. half resolution; 2 = quarter resolution, a coarser flow
+    grid, ~3x faster: benchmarks/bench_interpolate.py reports its PSNR).
     ``max_log_step``: bound on max per-pixel |delta log(Y + eps)| between consecutive
     output frames (Y = linear luminance).
     ``max_upsample``: most output steps per input interval (inserted frames <= this - 1).
@@ -94,6 +97,7 @@ class InterpolateConfig:
     method: Literal["flow", "linear", "none"] = "flow"
     flow: Literal["dis", "farneback"] = "dis"
     dis_preset: Literal["ultrafast", "fast", "medium"] = "medium"
+    dis_finest_scale: Optional[int] = None
     max_log_step: float = 0.1
     max_upsample: int = 64
     log_eps: Optional[float] = None
@@ -109,6 +113,8 @@ class InterpolateConfig:
             raise ConfigError("interpolate.flow", f"must be dis or farneback, got {self.flow!r}")
         if self.dis_preset not in ("ultrafast", "fast", "medium"):
             raise ConfigError("interpolate.dis_preset", f"must be ultrafast, fast or medium, got {self.dis_preset!r}")
+        if self.dis_finest_scale is not None and not 0 <= self.dis_finest_scale <= 4:
+            raise ConfigError("interpolate.dis_finest_scale", f"must be 0..4 or null, got {self.dis_finest_scale}")
         positive("interpolate.max_log_step", self.max_log_step, allow_zero=False)
         if self.max_upsample < 1:
             raise ConfigError("interpolate.max_upsample", f"must be >= 1, got {self.max_upsample}")
@@ -260,17 +266,34 @@ def flow_fits(shape: tuple[int, ...]) -> bool:
     return min(shape[0], shape[1]) >= MIN_FLOW_SIDE
 
 
-def _dis(preset: str):
-    """This thread's cv2.DISOpticalFlow of ``preset``, created once: creating one per call
-    costs more than the flow itself (15.7 vs 6.6 ms at 346 x 260, medium), and a reused
-    instance gives bit-identical flows (no initial flow is passed)."""
+#: Every parameter of a cv2.DISOpticalFlow (get/set pairs).
+_DIS_PARAMS = ("FinestScale", "CoarsestScale", "PatchSize", "PatchStride", "GradientDescentIterations",
+               "VariationalRefinementIterations", "VariationalRefinementAlpha", "VariationalRefinementDelta",
+               "VariationalRefinementGamma", "VariationalRefinementEpsilon", "UseMeanNormalization",
+               "UseSpatialPropagation")
+
+
+def _dis(preset: str, finest_scale: int | None = None):
+    """This thread's cv2.DISOpticalFlow of ``preset`` (and finest scale), created once and
+    reset to its initial parameters before each use: creating one per call costs more than
+    the flow itself (15.7 vs 6.6 ms at 346 x 260, medium). The reset matters: on small
+    frames DIS rewrites its own patch size and scales inside ``calc``; with it, a reused
+    instance gives the flows of a fresh one bit for bit (no initial flow is passed)."""
     cache = getattr(_DIS_CACHE, "by_preset", None)
     if cache is None:
         cache = _DIS_CACHE.by_preset = {}
-    dis = cache.get(preset)
-    if dis is None:
-        dis = cache[preset] = cv2.DISOpticalFlow_create(_DIS_PRESETS[preset])
-    return dis
+    key = (preset, finest_scale)
+    entry = cache.get(key)
+    if entry is None:
+        dis = cv2.DISOpticalFlow_create(_DIS_PRESETS[preset])
+        if finest_scale is not None:
+            dis.setFinestScale(int(finest_scale))
+        entry = cache[key] = (dis, {k: getattr(dis, "get" + k)() for k in _DIS_PARAMS})
+    else:
+        dis, params = entry
+        for k, v in params.items():
+            getattr(dis, "set" + k)(v)
+    return entry[0]
 
 
 def optical_flow(a: np.ndarray, b: np.ndarray, cfg: InterpolateConfig) -> np.ndarray:
@@ -281,7 +304,7 @@ def optical_flow(a: np.ndarray, b: np.ndarray, cfg: InterpolateConfig) -> np.nda
                               f"flow (both sides must be >= {MIN_FLOW_SIDE} px); use method 'linear'")
     ua, ub = _flow_u8(a), _flow_u8(b)
     if cfg.flow == "dis":
-        return _dis(cfg.dis_preset).calc(ua, ub, None)
+        return _dis(cfg.dis_preset, cfg.dis_finest_scale).calc(ua, ub, None)
     return cv2.calcOpticalFlowFarneback(ua, ub, None, pyr_scale=0.5, levels=4, winsize=15,
                                         iterations=3, poly_n=5, poly_sigma=1.2, flags=0)
 
