@@ -15,8 +15,10 @@ before each run (the machine may be shared) and every run's wall time are kept.
     PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_simulate_cli.py [--repeat 3] [--label after]
 
 ``--label`` names the entry in ``benchmarks/results/simulate_cli.json`` (other labels in
-the file are kept, e.g. the 'before' numbers of the code before the speed-ups;
-``--code DIR`` runs the CLI of another checkout for that).
+the file are kept); ``--compare before DIR`` runs another checkout's CLI too (e.g. the
+code before the speed-ups: ``git archive <rev> | tar -x -C DIR``), A/B alternated in
+every repeat so both see the same load; ``--extra-set`` adds a ``--set`` to this
+checkout's runs (e.g. ``--extra-set interpolate.dis_finest_scale=2``).
 """
 from __future__ import annotations
 
@@ -70,42 +72,55 @@ def run_cli(code: Path, src: Path, out: Path, params: Path, extra: list[str]) ->
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--label", default="after")
+    ap.add_argument("--label", default="after", help="name of this checkout's entry")
     ap.add_argument("--code", type=Path, default=ROOT, help="checkout whose CLI runs (default: this one)")
+    ap.add_argument("--compare", nargs=2, metavar=("LABEL", "DIR"), default=None,
+                    help="also run another checkout (e.g. 'before' /tmp/old), A/B alternated in every repeat")
     ap.add_argument("--modes", nargs="+", default=list(MODES), choices=list(MODES))
-    ap.add_argument("--extra", nargs="*", default=[], help="more CLI arguments for every run")
+    ap.add_argument("--extra-set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="a --set for every run of --code (repeatable)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "simulate_cli.json")
     args = ap.parse_args(argv)
     params = ROOT / "params.yaml"
-    entry = {"command": "python benchmarks/bench_simulate_cli.py " + " ".join(argv or sys.argv[1:]),
-             "code": str(args.code), "extra_args": args.extra, "modes": {}}
+    extra_args = [a for kv in args.extra_set for a in ("--set", kv)]
+    codes = {args.label: (args.code, extra_args)}
+    if args.compare:
+        codes[args.compare[0]] = (Path(args.compare[1]), [])
+    command = "python benchmarks/bench_simulate_cli.py " + " ".join(argv or sys.argv[1:])
+    entries = {}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         srcs = {n: tmp / f"pan_{n}.h5" for n in SIZES}
         for n, p in srcs.items():
             render_clip(p, n)
-        for m in args.modes:   # warm-up (numba cache load/compile, disk cache), not timed
-            run_cli(args.code, srcs[SIZES[0]], tmp / "out.h5", params, MODES[m] + args.extra)
-        runs = {m: {n: [] for n in SIZES} for m in args.modes}
-        loads = []
+        for code, extra in codes.values():
+            for m in args.modes:   # warm-up (numba cache load/compile, disk cache), not timed
+                run_cli(code, srcs[SIZES[0]], tmp / "out.h5", params, MODES[m] + extra)
+        runs = {lb: {m: {n: [] for n in SIZES} for m in args.modes} for lb in codes}
+        loads = {lb: [] for lb in codes}
         for r in range(args.repeat):
             for m in args.modes:
                 for n in SIZES:
-                    loads.append(os.getloadavg()[0])
-                    dt, line = run_cli(args.code, srcs[n], tmp / "out.h5", params, MODES[m] + args.extra)
-                    runs[m][n].append(round(dt, 3))
-                    print(f"[{args.label}] {m} {n} frames: {dt:.2f} s (load {loads[-1]:.2f}) {line}", flush=True)
-        for m in args.modes:
-            rates = [(SIZES[1] - SIZES[0]) / (b - a) if b > a else float("nan")
-                     for a, b in zip(runs[m][SIZES[0]], runs[m][SIZES[1]])]
-            entry["modes"][m] = {
-                "cli_args": MODES[m] + args.extra,
-                "marginal_frames_per_s_median": round(statistics.median(rates), 1),
-                "marginal_frames_per_s_runs": [round(x, 1) for x in rates],
-                "wall_s": {str(n): runs[m][n] for n in SIZES},
-                "end_to_end_frames_per_s_1600_median": round(SIZES[1] / statistics.median(runs[m][SIZES[1]]), 1)}
-    entry["load_average_1min"] = {"min": round(min(loads), 2), "median": round(statistics.median(loads), 2),
-                                  "max": round(max(loads), 2)}
+                    for lb, (code, extra) in codes.items():
+                        loads[lb].append(os.getloadavg()[0])
+                        dt, line = run_cli(code, srcs[n], tmp / "out.h5", params, MODES[m] + extra)
+                        runs[lb][m][n].append(round(dt, 3))
+                        print(f"[{lb}] {m} {n} frames: {dt:.2f} s (load {loads[lb][-1]:.2f}) {line}", flush=True)
+        for lb, (code, extra) in codes.items():
+            entry = entries[lb] = {"command": command, "code": str(code), "extra_args": extra, "modes": {}}
+            for m in args.modes:
+                rs = runs[lb][m]
+                rates = [(SIZES[1] - SIZES[0]) / (b - a) if b > a else float("nan")
+                         for a, b in zip(rs[SIZES[0]], rs[SIZES[1]])]
+                entry["modes"][m] = {
+                    "cli_args": MODES[m] + extra,
+                    "marginal_frames_per_s_median": round(statistics.median(rates), 1),
+                    "marginal_frames_per_s_runs": [round(x, 1) for x in rates],
+                    "wall_s": {str(n): rs[n] for n in SIZES},
+                    "end_to_end_frames_per_s_1600_median": round(SIZES[1] / statistics.median(rs[SIZES[1]]), 1)}
+            entry["load_average_1min"] = {"min": round(min(loads[lb]), 2),
+                                          "median": round(statistics.median(loads[lb]), 2),
+                                          "max": round(max(loads[lb]), 2)}
     doc = {"benchmark": "simulate_cli", "workload": {
         "size": [W, H], "step_us": STEP_US, "pan_px_per_frame": 1, "frames": list(SIZES),
         "frames_dtype": "uint8", "params": "repository params.yaml (study degrade + interpolate sections)",
@@ -113,14 +128,14 @@ def main(argv=None) -> int:
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                     "python": platform.python_version()}, "results": {}}
     if args.out.exists():
-        old = json.loads(args.out.read_text())
-        doc["results"] = old.get("results", {})
-    doc["results"][args.label] = entry
+        doc["results"] = json.loads(args.out.read_text()).get("results", {})
+    doc["results"].update(entries)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(doc, indent=1) + "\n")
-    for m, e in entry["modes"].items():
-        print(f"{args.label} {m}: {e['marginal_frames_per_s_median']} frames/s marginal "
-              f"(runs {e['marginal_frames_per_s_runs']})")
+    for lb, entry in entries.items():
+        for m, e in entry["modes"].items():
+            print(f"{lb} {m}: {e['marginal_frames_per_s_median']} frames/s marginal "
+                  f"(runs {e['marginal_frames_per_s_runs']}), load {entry['load_average_1min']}")
     return 0
 
 
