@@ -10,7 +10,7 @@ Frames and events are streamed chunk by chunk (bounded memory); the output is wr
 to a temporary file and moved into place only on success. Frames are stored as the
 source holds them (uint8 HDF5 frames stay uint8; video and image frames as float32
 linear), compressed with LZF by default (``--compression``), or not at all with
-``--no-frames``.
+``--no-frames``; frames and events are written from a background thread.
 
 The params come from ``--params``, else ./params.yaml when present (the study's: every
 degradation on), else built-in defaults (every degradation off); the log names the
@@ -72,6 +72,7 @@ def run(args) -> int:
     from rdnet.errors import FormatError, ValidationError
     from rdnet.events.core import Events
     from rdnet.events.io import H5RecordingWriter
+    from rdnet.events.io.hdf5 import BackgroundWrites
     from rdnet.sim.pair import frame_chunks, stream_events
     from rdnet.sim.randomize import degradation_level, draw_degrade
     from rdnet.sim.sensor import Sensor
@@ -108,10 +109,10 @@ def run(args) -> int:
         raise FormatError(args.input, "frames", "no frames")
     width, height = first.width, first.height
 
-    def frames_written(w):
+    def frames_written(bg):
         for f in itertools.chain([first], source):
             if args.store_frames:
-                w.append_frames(f.images, f.t_us, f.exposure_us)
+                bg.append_frames(f.images, f.t_us, f.exposure_us)
             yield f
 
     if args.ideal:
@@ -136,17 +137,18 @@ def run(args) -> int:
         for g in groups:
             w.append_events(Events.empty(width, height), g)   # groups exist even if empty
 
-        def counted():
+        def counted(bg):
             nonlocal n_frames
-            for f in frames_written(w):
+            for f in frames_written(bg):
                 n_frames += len(f)
                 yield f
 
-        chunks = frame_chunks(counted(), interpolate=interp, log_eps=sensor.log_eps, chunk=args.chunk)
-        for evs in stream_events(chunks, sensors, progress=True):
-            for g, ev in zip(groups, evs):
-                w.append_events(ev, g)
-                counts[g] += len(ev)
+        with BackgroundWrites(w) as bg:   # compression and writing overlap the simulation
+            chunks = frame_chunks(counted(bg), interpolate=interp, log_eps=sensor.log_eps, chunk=args.chunk)
+            for evs in stream_events(chunks, sensors, progress=True):
+                for g, ev in zip(groups, evs):
+                    bg.append_events(ev, g)
+                    counts[g] += len(ev)
     desc = ", ".join(f"{n:,} in /{g}" for g, n in counts.items())
     print(f"wrote {args.output} ({n_frames} frames, {width} x {height}; events: {desc})")
     return 0

@@ -207,3 +207,27 @@ def test_simulate_help_and_info_do_not_import_torch(pan_u8):
     mods = _modules_after(code)
     assert "rdnet.cli" in mods          # the probe ran
     assert "torch" not in mods
+
+
+def test_background_writes_keep_order_and_raise_errors(tmp_path):
+    from rdnet.errors import ValidationError
+    from rdnet.events.core import EVENT_DTYPE, Events
+    from rdnet.events.io import H5RecordingWriter
+    from rdnet.events.io.hdf5 import BackgroundWrites
+
+    def ev(t):
+        a = np.zeros(len(t), EVENT_DTYPE)
+        a["t"] = t
+        return Events(a, 8, 6)
+
+    out = tmp_path / "bg.h5"
+    with H5RecordingWriter(out, 8, 6) as w, BackgroundWrites(w, max_pending=2) as bg:
+        for k in range(10):
+            bg.append_events(ev(np.arange(3) + 10 * k))
+    np.testing.assert_array_equal(read_events(out).t, (np.arange(3)[None] + 10 * np.arange(10)[:, None]).ravel())
+    bad = tmp_path / "bad.h5"
+    with pytest.raises(ValidationError, match="before the last"):
+        with H5RecordingWriter(bad, 8, 6) as w, BackgroundWrites(w) as bg:
+            bg.append_events(ev([5, 6]))
+            bg.append_events(ev([1]))            # out of order: fails in the thread
+    assert not bad.exists()
