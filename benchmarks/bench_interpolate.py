@@ -44,7 +44,10 @@ from rdnet.sim.scenes import ScenesConfig, make_specs, render_sequence, render_s
 BOUND, EPS, DARK = 0.1, 0.01, 0.05
 
 METHODS = {
-    "flow_dis": InterpolateConfig(method="flow", flow="dis"),
+    "flow_dis": InterpolateConfig(method="flow", flow="dis"),          # medium preset (the default)
+    "flow_dis_fast": InterpolateConfig(method="flow", flow="dis", dis_preset="fast"),
+    "flow_dis_ultrafast": InterpolateConfig(method="flow", flow="dis", dis_preset="ultrafast"),
+    "flow_dis_scale2": InterpolateConfig(method="flow", flow="dis", dis_finest_scale=2),   # medium, coarser grid
     "flow_farneback": InterpolateConfig(method="flow", flow="farneback"),
     "linear": InterpolateConfig(method="linear"),
 }

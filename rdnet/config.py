@@ -229,3 +229,37 @@ def positive(key: str, value: float, *, allow_zero: bool = True) -> None:
     """Range check helper for ``__post_init__``."""
     if value != value or value < 0 or (not allow_zero and value == 0):
         raise ConfigError(key, f"must be {'>= 0' if allow_zero else '> 0'}, got {value}")
+
+
+# --- command-line access (``--params`` / ``--set``), shared by the CLI and entry points --
+
+#: What :func:`params_source` reports when no params.yaml is read.
+BUILTIN_DEFAULTS = "built-in defaults"
+
+
+def add_params_args(p) -> None:
+    """Add ``--params`` and ``--set`` to an argparse parser (read by :func:`load_cli_params`)."""
+    p.add_argument("--params", type=Path, default=None,
+                   help="params.yaml to read (default: ./params.yaml if present, else built-in defaults)")
+    p.add_argument("--set", dest="sets", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override a params.yaml key (repeatable), e.g. degrade.refractory_us=500")
+
+
+def cli_params_path(args) -> Path | None:
+    """The params.yaml a command reads: ``--params``, else ./params.yaml when present, else
+    None (built-in defaults)."""
+    if args.params is not None:
+        return args.params
+    return Path("params.yaml") if Path("params.yaml").is_file() else None
+
+
+def params_source(args) -> str:
+    """Where a command's params come from, for logs and output attributes: the absolute
+    path of the params.yaml read, or :data:`BUILTIN_DEFAULTS`."""
+    path = cli_params_path(args)
+    return BUILTIN_DEFAULTS if path is None else str(Path(path).resolve())
+
+
+def load_cli_params(args) -> dict:
+    """Params of a command: :func:`cli_params_path` with the ``--set`` overrides applied."""
+    return load_params(cli_params_path(args), args.sets)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rdnet.cli.common import add_params_args, load_cli_params
+from rdnet.config import add_params_args, load_cli_params
 
 
 def register(subparsers) -> None:

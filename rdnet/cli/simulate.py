@@ -7,14 +7,26 @@ undegraded with ``--ideal``; ``--pair`` writes both (degraded in /events, undegr
 /events_ideal). ``--split train|test`` draws the degradation of this sequence from the
 ``randomize`` ranges. The values used are stored in the root attribute ``degrade_json``.
 Frames and events are streamed chunk by chunk (bounded memory); the output is written
-to a temporary file and moved into place only on success.
+to a temporary file and moved into place only on success. Frames are stored as the
+source holds them (uint8 HDF5 frames stay uint8; video and image frames as float32
+linear), compressed with LZF by default (``--compression``), or not at all with
+``--no-frames``; frames and events are written from a background thread.
+
+The params come from ``--params``, else ./params.yaml when present (the study's: every
+degradation on), else built-in defaults (every degradation off); the log names the
+source and the effective ``sensor``/``degrade``/``interpolate`` values, and the output
+stores them in the root attributes ``params_source``, ``sensor_json``, ``degrade_json``
+and ``interpolate_json``.
 """
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 
-from rdnet.cli.common import add_params_args, load_cli_params
+from rdnet.config import add_params_args, load_cli_params, params_source
+
+log = logging.getLogger(__name__)
 
 
 def register(subparsers) -> None:
@@ -33,6 +45,10 @@ def register(subparsers) -> None:
     p.add_argument("--no-interpolate", action="store_true",
                    help="use the frames as given (no upsampling, as interpolate.method=none)")
     p.add_argument("--chunk", type=int, default=64, help="simulation steps per chunk (default 64)")
+    p.add_argument("--no-frames", dest="store_frames", action="store_false",
+                   help="do not copy the input frames into OUTPUT (events only)")
+    p.add_argument("--compression", choices=["lzf", "gzip", "none"], default="lzf",
+                   help="HDF5 compression of OUTPUT (default lzf: fast; gzip: ~smaller, slower)")
     p.set_defaults(func=run)
 
 
@@ -56,6 +72,7 @@ def run(args) -> int:
     from rdnet.errors import FormatError, ValidationError
     from rdnet.events.core import Events
     from rdnet.events.io import H5RecordingWriter
+    from rdnet.events.io.hdf5 import BackgroundWrites
     from rdnet.sim.pair import frame_chunks, stream_events
     from rdnet.sim.randomize import degradation_level, draw_degrade
     from rdnet.sim.sensor import Sensor
@@ -63,10 +80,11 @@ def run(args) -> int:
     from rdnet.sim.sources import iter_frames
 
     params = load_cli_params(args)
+    source_of_params = params_source(args)
     sensor = _section(params, "sensor", "rdnet.sim.settings:SensorConfig")
     base = _section(params, "degrade", "rdnet.sim.settings:DegradeConfig")
-    interp = None if args.no_interpolate else _section(params, "interpolate",
-                                                       "rdnet.sim.interpolate:InterpolateConfig")
+    interp_cfg = _section(params, "interpolate", "rdnet.sim.interpolate:InterpolateConfig")
+    interp = None if args.no_interpolate else interp_cfg
     if args.chunk < 1:
         raise ValidationError("--chunk", f"must be >= 1, got {args.chunk}")
     if args.output.suffix.lower() not in (".h5", ".hdf5", ".hdf"):
@@ -79,16 +97,22 @@ def run(args) -> int:
         degrade = draw_degrade(base, _section(params, "randomize", "rdnet.sim.settings:RandomizeConfig"),
                                args.split, rng)
     applied = DegradeConfig() if args.ideal else degrade
+    interp_json = json.dumps({"method": "none"} if interp is None else to_dict(interp))
+    log.info("params: %s", source_of_params)
+    log.info("sensor: %s", json.dumps(to_dict(sensor)))
+    log.info("degrade%s: %s", " (--ideal: not applied)" if args.ideal else "", json.dumps(to_dict(degrade)))
+    log.info("interpolate: %s", interp_json)
 
-    source = iter_frames(args.input, chunk_frames=args.chunk)
+    source = iter_frames(args.input, chunk_frames=args.chunk, as_stored=True)
     first = next(source, None)
     if first is None:
         raise FormatError(args.input, "frames", "no frames")
     width, height = first.width, first.height
 
-    def frames_written(w):
+    def frames_written(bg):
         for f in itertools.chain([first], source):
-            w.append_frames(f.images, f.t_us, f.exposure_us)
+            if args.store_frames:
+                bg.append_frames(f.images, f.t_us, f.exposure_us)
             yield f
 
     if args.ideal:
@@ -101,9 +125,11 @@ def run(args) -> int:
 
     counts = dict.fromkeys(groups, 0)
     n_frames = 0
-    with H5RecordingWriter(args.output, width, height, "simulated") as w:
+    with H5RecordingWriter(args.output, width, height, "simulated", compression=args.compression) as w:
+        w.set_attr("params_source", source_of_params)
         w.set_attr("degrade_json", json.dumps(to_dict(applied)))
         w.set_attr("sensor_json", json.dumps(to_dict(sensor)))
+        w.set_attr("interpolate_json", interp_json)
         w.set_attr("simulate_seed", int(args.seed))
         if args.split is not None:
             w.set_attr("split", args.split)
@@ -111,17 +137,18 @@ def run(args) -> int:
         for g in groups:
             w.append_events(Events.empty(width, height), g)   # groups exist even if empty
 
-        def counted():
+        def counted(bg):
             nonlocal n_frames
-            for f in frames_written(w):
+            for f in frames_written(bg):
                 n_frames += len(f)
                 yield f
 
-        chunks = frame_chunks(counted(), interpolate=interp, log_eps=sensor.log_eps, chunk=args.chunk)
-        for evs in stream_events(chunks, sensors, progress=True):
-            for g, ev in zip(groups, evs):
-                w.append_events(ev, g)
-                counts[g] += len(ev)
+        with BackgroundWrites(w) as bg:   # compression and writing overlap the simulation
+            chunks = frame_chunks(counted(bg), interpolate=interp, log_eps=sensor.log_eps, chunk=args.chunk)
+            for evs in stream_events(chunks, sensors, progress=True):
+                for g, ev in zip(groups, evs):
+                    bg.append_events(ev, g)
+                    counts[g] += len(ev)
     desc = ", ".join(f"{n:,} in /{g}" for g, n in counts.items())
     print(f"wrote {args.output} ({n_frames} frames, {width} x {height}; events: {desc})")
     return 0

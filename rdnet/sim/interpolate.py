@@ -49,8 +49,10 @@ every pixel at the price of more steps. :class:`UpsampleStats` reports what was 
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
+import threading
 from dataclasses import dataclass, field
 from typing import Iterator, Literal, Optional
 
@@ -74,6 +76,9 @@ class InterpolateConfig:
     ``method``: 'flow' (optical-flow warping), 'linear' (blending) or 'none'.
     ``flow``: optical-flow algorithm, 'dis' (cv2.DISOpticalFlow) or 'farneback'.
     ``dis_preset``: DIS speed/quality preset ('ultrafast', 'fast', 'medium').
+    ``dis_finest_scale``: finest pyramid level DIS computes the flow on (None: the
+    preset's; medium uses 1, i.e. half resolution; 2 = quarter resolution, a coarser flow
+    grid, ~3x faster: benchmarks/bench_interpolate.py reports its PSNR).
     ``max_log_step``: bound on max per-pixel |delta log(Y + eps)| between consecutive
     output frames (Y = linear luminance).
     ``max_upsample``: most output steps per input interval (inserted frames <= this - 1).
@@ -92,6 +97,7 @@ class InterpolateConfig:
     method: Literal["flow", "linear", "none"] = "flow"
     flow: Literal["dis", "farneback"] = "dis"
     dis_preset: Literal["ultrafast", "fast", "medium"] = "medium"
+    dis_finest_scale: Optional[int] = None
     max_log_step: float = 0.1
     max_upsample: int = 64
     log_eps: Optional[float] = None
@@ -107,6 +113,8 @@ class InterpolateConfig:
             raise ConfigError("interpolate.flow", f"must be dis or farneback, got {self.flow!r}")
         if self.dis_preset not in ("ultrafast", "fast", "medium"):
             raise ConfigError("interpolate.dis_preset", f"must be ultrafast, fast or medium, got {self.dis_preset!r}")
+        if self.dis_finest_scale is not None and not 0 <= self.dis_finest_scale <= 4:
+            raise ConfigError("interpolate.dis_finest_scale", f"must be 0..4 or null, got {self.dis_finest_scale}")
         positive("interpolate.max_log_step", self.max_log_step, allow_zero=False)
         if self.max_upsample < 1:
             raise ConfigError("interpolate.max_upsample", f"must be >= 1, got {self.max_upsample}")
@@ -190,6 +198,12 @@ def luminance(images: np.ndarray) -> np.ndarray:
     return images.astype(np.float32, copy=False)
 
 
+def _log_luminance(frame: np.ndarray, log_eps: float, *, color: bool) -> np.ndarray:
+    """``log(Y + eps)`` of one frame (H, W[, 3]), as :func:`step_sizes` computes it."""
+    y = frame @ _LUMA if color else frame
+    return np.log(y.astype(np.float32) + np.float32(log_eps))
+
+
 def step_sizes(chain: np.ndarray, log_eps: float, *, color: bool) -> np.ndarray:
     """(K - 1, H, W) float32 ``|log(Y_{k+1} + eps) - log(Y_k + eps)|`` along a
     (K, H, W[, 3]) chain of frames (Y = luminance)."""
@@ -238,14 +252,72 @@ _DIS_PRESETS = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
                 "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
 
 
+#: Smallest frame side the optical flow is used on: OpenCV's DIS raises an error below
+#: 12 px and crashes (segmentation fault) on elongated frames up to 30 px high (e.g.
+#: 30 x 346 with the fast preset); every preset ran on all sizes from 32 x 32 to
+#: 64 x 2000 tried. Smaller frames are blended linearly (:func:`flow_fits`).
+MIN_FLOW_SIDE = 32
+
+_DIS_CACHE = threading.local()
+
+
+def flow_fits(shape: tuple[int, ...]) -> bool:
+    """Whether frames of ``shape`` ((H, W) or (H, W, 3)) are large enough for the flow."""
+    return min(shape[0], shape[1]) >= MIN_FLOW_SIDE
+
+
+#: Every parameter of a cv2.DISOpticalFlow (get/set pairs).
+_DIS_PARAMS = ("FinestScale", "CoarsestScale", "PatchSize", "PatchStride", "GradientDescentIterations",
+               "VariationalRefinementIterations", "VariationalRefinementAlpha", "VariationalRefinementDelta",
+               "VariationalRefinementGamma", "VariationalRefinementEpsilon", "UseMeanNormalization",
+               "UseSpatialPropagation")
+
+
+def _dis(preset: str, finest_scale: int | None = None):
+    """This thread's cv2.DISOpticalFlow of ``preset`` (and finest scale), created once and
+    reset to its initial parameters before each use: creating one per call costs more than
+    the flow itself (15.7 vs 6.6 ms at 346 x 260, medium). The reset matters: on small
+    frames DIS rewrites its own patch size and scales inside ``calc``; with it, a reused
+    instance gives the flows of a fresh one bit for bit (no initial flow is passed)."""
+    cache = getattr(_DIS_CACHE, "by_preset", None)
+    if cache is None:
+        cache = _DIS_CACHE.by_preset = {}
+    key = (preset, finest_scale)
+    entry = cache.get(key)
+    if entry is None:
+        dis = cv2.DISOpticalFlow_create(_DIS_PRESETS[preset])
+        if finest_scale is not None:
+            dis.setFinestScale(int(finest_scale))
+        entry = cache[key] = (dis, {k: getattr(dis, "get" + k)() for k in _DIS_PARAMS})
+    else:
+        dis, params = entry
+        for k, v in params.items():
+            getattr(dis, "set" + k)(v)
+    return entry[0]
+
+
 def optical_flow(a: np.ndarray, b: np.ndarray, cfg: InterpolateConfig) -> np.ndarray:
-    """(H, W, 2) float32 flow from luminance ``a`` to ``b`` (a(x) ~ b(x + F(x)))."""
+    """(H, W, 2) float32 flow from luminance ``a`` to ``b`` (a(x) ~ b(x + F(x))); the
+    frames must have both sides >= :data:`MIN_FLOW_SIDE` (ValidationError otherwise)."""
+    if not flow_fits(a.shape):
+        raise ValidationError("images", f"{a.shape[1]} x {a.shape[0]} frames are too small for the optical "
+                              f"flow (both sides must be >= {MIN_FLOW_SIDE} px); use method 'linear'")
     ua, ub = _flow_u8(a), _flow_u8(b)
     if cfg.flow == "dis":
-        dis = cv2.DISOpticalFlow_create(_DIS_PRESETS[cfg.dis_preset])
-        return dis.calc(ua, ub, None)
+        return _dis(cfg.dis_preset, cfg.dis_finest_scale).calc(ua, ub, None)
     return cv2.calcOpticalFlowFarneback(ua, ub, None, pyr_scale=0.5, levels=4, winsize=15,
                                         iterations=3, poly_n=5, poly_sigma=1.2, flags=0)
+
+
+def fit_to_size(cfg: InterpolateConfig, shape: tuple[int, ...], *, warn: bool = True) -> InterpolateConfig:
+    """``cfg`` for frames of ``shape`` ((H, W[, 3])): method 'flow' becomes 'linear' (with a
+    warning) when the frames are smaller than the flow accepts (:func:`flow_fits`)."""
+    if cfg.method != "flow" or flow_fits(shape):
+        return cfg
+    if warn:
+        log.warning("%d x %d frames are too small for the optical flow (both sides must be >= %d px): "
+                    "interpolating by linear blending instead", shape[1], shape[0], MIN_FLOW_SIDE)
+    return dataclasses.replace(cfg, method="linear")
 
 
 def _grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
@@ -358,22 +430,23 @@ def interpolate_pair(f0: np.ndarray, f1: np.ndarray, n_inserted: int,
 
 
 def _adaptive(pi: PairInterpolator, cap: int, log_eps: float, cfg: InterpolateConfig,
-              stats: list[UpsampleStats]) -> tuple[np.ndarray, np.ndarray | None]:
+              stats: list[UpsampleStats]) -> tuple[np.ndarray, np.ndarray | None, float | None]:
     """Inserted frames for one pair, count chosen so the measured criterion <= bound (at
-    most ``cap``), and the step sizes of the final chain (None when not measured)."""
+    most ``cap``), the step sizes of the final chain and their criterion (None when not
+    measured)."""
     bound = cfg.max_log_step
     if cap <= 0:
-        return np.empty((0,) + pi.f0.shape, np.float32), None
+        return np.empty((0,) + pi.f0.shape, np.float32), None, None
     n = min(cap, max(0, math.ceil(pi.motion_estimate(log_eps, cfg.pixel_quantile) / bound) - 1))
     while True:
         mid = pi.frames(n)
         if not cfg.verify:
-            return mid, None
+            return mid, None, None
         chain = np.concatenate([pi.f0[None], mid, pi.f1[None]])
         steps = step_sizes(chain, log_eps, color=pi.color)
         m = criterion(steps, cfg.pixel_quantile)
         if m <= bound or n >= cap:
-            return mid, steps
+            return mid, steps, m
         k = n + 1
         # steps scale ~linearly with the measured step; grow by at least 1.5x
         new_steps = max(math.ceil(k * m / bound * 1.05), math.ceil(k * 1.5), k + 1)
@@ -453,6 +526,7 @@ def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = Inte
         raise ValidationError("images", "no frames")
     if n > 1 and np.any(np.diff(t_us) <= 0):
         raise ValidationError("t_us", "timestamps must be strictly increasing")
+    cfg = fit_to_size(cfg, images.shape[1:], warn=warn)
     eps = float(cfg.log_eps if cfg.log_eps is not None else log_eps)
     bound = cfg.max_log_step
     here = UpsampleStats()
@@ -461,14 +535,17 @@ def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = Inte
         yield _as_float(images[:1]), t_us[:1].copy()
         return
     color = images.ndim == 4
+    quantile = 1.0 if cfg.fill_log else cfg.pixel_quantile
+    next_f0 = prev_log = None
     for i in range(n - 1):
-        f0, f1 = _as_float(images[i]), _as_float(images[i + 1])
+        f0 = _as_float(images[i]) if next_f0 is None else next_f0
+        f1 = next_f0 = _as_float(images[i + 1])
         dt = int(t_us[i + 1] - t_us[i])
         cap = min(cfg.max_upsample - 1, dt - 1)
-        if cfg.method == "none":
-            mid, steps = np.empty((0,) + f0.shape, np.float32), None
+        if cfg.method == "none" or cap <= 0:
+            mid, steps, crit = np.empty((0,) + f0.shape, np.float32), None, None
         else:
-            mid, steps = _adaptive(PairInterpolator(f0, f1, cfg), cap, eps, cfg, sts)
+            mid, steps, crit = _adaptive(PairInterpolator(f0, f1, cfg), cap, eps, cfg, sts)
         k = mid.shape[0]
         t_mid = t_us[i] + np.rint(np.arange(1, k + 1) * (dt / (k + 1))).astype(np.int64)
         chain = np.concatenate([f0[None], mid, f1[None]])
@@ -478,9 +555,18 @@ def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = Inte
             chain, times, filled = fill_log(chain, times, eps, bound)
             if filled:
                 steps = None
+        log1 = None
         if steps is None:
-            steps = step_sizes(chain, eps, color=color)
-        crit = criterion(steps, 1.0 if cfg.fill_log else cfg.pixel_quantile)
+            crit = None
+            if chain.shape[0] == 2:   # nothing inserted: the step of the pair, f0's log kept from the last pair
+                log1 = _log_luminance(f1, eps, color=color)
+                log0 = prev_log if prev_log is not None else _log_luminance(f0, eps, color=color)
+                steps = np.abs(log1 - log0)[None]
+            else:
+                steps = step_sizes(chain, eps, color=color)
+        prev_log = log1
+        if crit is None or cfg.fill_log:
+            crit = criterion(steps, quantile)
         for st in sts:
             st._record(steps, bound, crit, chain.shape[0] - 2, filled)
         last = i == n - 2

@@ -56,7 +56,7 @@ def upsample_stream(parts: Iterable[Frames], interpolate, log_eps: float, stats=
     on the whole sequence, carrying the last frame across chunk borders, so only a chunk
     is ever in memory. One warning at the end if the log-step bound was exceeded;
     ``stats`` (an UpsampleStats) collects what the upsampling achieved."""
-    from rdnet.sim.interpolate import UpsampleStats, upsample, warn_if_over
+    from rdnet.sim.interpolate import UpsampleStats, fit_to_size, upsample, warn_if_over
 
     here = UpsampleStats()
     sts = [here] if stats is None else [here, stats]
@@ -65,7 +65,9 @@ def upsample_stream(parts: Iterable[Frames], interpolate, log_eps: float, stats=
         if len(fr) == 0:
             continue
         ims, ts = fr.images, fr.t_us
-        if prev_im is not None:
+        if prev_im is None:
+            interpolate = fit_to_size(interpolate, ims.shape[1:])   # warns once for small frames
+        else:
             ims = np.concatenate([prev_im, ims])
             ts = np.concatenate([prev_t, ts])
         first = True

@@ -34,9 +34,12 @@ def ensure_sections() -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from rdnet.cli.common import add_params_args
-    from rdnet.train.loop import TASKS
-    p.add_argument("--task", required=True, choices=list(TASKS), help="what to train")
+    from rdnet.config import add_params_args
+
+    # no ``choices`` from rdnet.train.loop.TASKS: that module imports torch, and this runs
+    # whenever the ``rdnet`` CLI builds its parser; train() rejects an unknown task
+    p.add_argument("--task", required=True,
+                   help="what to train: restore, deblur, deblurnet_matched, ... (rdnet.train.loop.TASKS)")
     p.add_argument("--train", dest="train_path", type=Path, required=True, help="pairs file (HDF5)")
     p.add_argument("--out", type=Path, required=True, help="output folder (model.pt, last.pt, dvclive/)")
     p.add_argument("--events", choices=["degraded", "undegraded"], default="degraded",
@@ -57,8 +60,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from rdnet.cli.common import load_cli_params
-    from rdnet.config import section
+    from rdnet.config import load_cli_params, section
     from rdnet.train import distributed
     from rdnet.train.loop import train
 

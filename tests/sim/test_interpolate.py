@@ -252,3 +252,51 @@ def test_occlusion_norms_equal_the_axis_sum():
            + ip._FB_ALPHA2).astype(np.float32)
     occ = ip._occluded(f01, f10, gx, gy)
     assert np.array_equal(occ, ref) and 0 < occ.sum() < occ.size
+
+
+@pytest.mark.parametrize("preset,finest", [("medium", None), ("fast", None), ("medium", 2)])
+def test_reused_dis_equals_a_fresh_one(texture, preset, finest):
+    """The cached DIS instance gives a fresh instance's flow bit for bit, also on frames so
+    small that DIS rewrites its own parameters inside calc (36 x 40) and after them."""
+    from rdnet.sim.interpolate import _DIS_PRESETS, _dis
+    ok = []
+    for h, w in [(36, 40), (96, 120), (36, 40), (64, 64)]:
+        a = (texture[:h, :w] * 255).astype(np.uint8)
+        b = (texture[1:h + 1, 2:w + 2] * 255).astype(np.uint8)
+        fresh = cv2.DISOpticalFlow_create(_DIS_PRESETS[preset])
+        if finest is not None:
+            fresh.setFinestScale(finest)
+        ok.append(np.array_equal(_dis(preset, finest).calc(a, b, None), fresh.calc(a, b, None)))
+    assert all(ok)
+
+
+def test_flow_too_small_is_a_clear_error_and_upsample_blends(caplog):
+    from rdnet.sim.interpolate import MIN_FLOW_SIDE, PairInterpolator
+    f0 = np.full((4, 5), 0.2, np.float32)
+    f1 = np.full((4, 5), 0.4, np.float32)
+    with pytest.raises(ValidationError, match=f">= {MIN_FLOW_SIDE} px"):
+        PairInterpolator(f0, f1, InterpolateConfig(method="flow")).frame(0.5)
+    ims, ts = upsample_all(np.stack([f0, f1]), np.array([0, 1000]), InterpolateConfig(method="flow", max_upsample=4))
+    assert "too small for the optical flow" in caplog.text
+    lin, _ = upsample_all(np.stack([f0, f1]), np.array([0, 1000]), InterpolateConfig(method="linear", max_upsample=4))
+    np.testing.assert_array_equal(ims, lin)
+    assert ims.shape[0] > 2
+
+
+@pytest.mark.parametrize("color", [False, True])
+def test_stats_without_inserted_frames_are_the_pair_steps(texture, color):
+    """max_upsample 1 (nothing inserted): the per-pair stats use the log of the last pair's
+    second frame; they equal the criterion measured on each pair."""
+    from rdnet.sim.interpolate import criterion, step_sizes
+    frames = _translated(texture, [(0.7 * k, 0.3 * k) for k in range(6)])
+    if color:
+        frames = np.stack([frames, frames * 0.8, frames * 0.6], axis=-1)
+    t = np.arange(6, dtype=np.int64) * 1000
+    cfg = InterpolateConfig(max_upsample=1, pixel_quantile=0.99)
+    st = UpsampleStats()
+    ims, ts = upsample_all(frames, t, cfg, stats=st, warn=False)
+    np.testing.assert_array_equal(ims, frames)
+    crits = [criterion(step_sizes(frames[i:i + 2], 0.01, color=color), 0.99) for i in range(5)]
+    assert st.pairs == 5 and st.inserted == 0
+    assert st.max_log_step == pytest.approx(max(crits), rel=1e-6)
+    assert st.violations == sum(c > cfg.max_log_step for c in crits)

@@ -503,6 +503,68 @@ class H5RecordingWriter:
         st["n"], st["last_t"] = n0 + n, int(fr.t_us[-1])
 
 
+class BackgroundWrites:
+    """Runs the appends of an :class:`H5RecordingWriter` in one background thread, in the
+    order submitted, so compressing and writing overlap with the caller's work (h5py
+    releases the GIL inside HDF5's dataset reads and writes). At most ``max_pending``
+    appends wait (bounded memory). An error in the thread is raised in the caller at the
+    next :meth:`append_events` / :meth:`append_frames` or at :meth:`close`. Use as a
+    context manager inside the writer's ``with`` block: leaving it waits for every write;
+    on an exception the waiting writes are dropped (the writer then discards the file)."""
+
+    def __init__(self, writer: "H5RecordingWriter", max_pending: int = 4):
+        import queue
+        import threading
+        self.writer = writer
+        self._queue: "queue.Queue" = queue.Queue(maxsize=max(1, int(max_pending)))
+        self._error: BaseException | None = None
+        self._cancel = False
+        self._thread = threading.Thread(target=self._work, name="h5-writer", daemon=True)
+        self._thread.start()
+
+    def _work(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            if self._error is None and not self._cancel:
+                fn, args = item
+                try:
+                    fn(*args)
+                except BaseException as e:   # handed to the caller
+                    self._error = e
+
+    def _submit(self, fn, *args) -> None:
+        if self._error is not None:
+            raise self._error
+        self._queue.put((fn, args))
+
+    def append_events(self, events: Events, group: str = "events") -> None:
+        """:meth:`H5RecordingWriter.append_events` in the background (on a copy of the events)."""
+        self._submit(self.writer.append_events, Events(events.array.copy(), events.width, events.height,
+                                                       validate=False), group)
+
+    def append_frames(self, images: np.ndarray, t_us, exposure_us) -> None:
+        """:meth:`H5RecordingWriter.append_frames` in the background (the arrays must not be
+        modified afterwards)."""
+        self._submit(self.writer.append_frames, images, t_us, exposure_us)
+
+    def close(self, cancel: bool = False) -> None:
+        """Wait for the pending writes (``cancel``: drop them) and stop the thread."""
+        self._cancel = self._cancel or cancel
+        if self._thread.is_alive():
+            self._queue.put(None)
+            self._thread.join()
+        if self._error is not None and not cancel:
+            raise self._error
+
+    def __enter__(self) -> "BackgroundWrites":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close(cancel=exc_type is not None)
+
+
 def write_recording(path: str | Path, rec: Recording, extra_events: Mapping[str, Events] | None = None,
                     attrs: Mapping | None = None, **writer_kw) -> None:
     """Write ``rec`` (events, frames, sensor, ``rec.attrs``) plus extra event groups
