@@ -38,19 +38,31 @@ from rdnet.errors import ValidationError
 from rdnet.events.core import Events
 
 
-def _median3_sparse(padded: np.ndarray, nonzero: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _each_once(idx: np.ndarray, scratch: np.ndarray) -> np.ndarray:
+    """The distinct values of ``idx`` (flat indices, in no particular order) in O(len), no
+    sort: each position writes its number into ``scratch`` (as long as the image) at its
+    index; exactly one position per index then reads back its own number."""
+    order = np.arange(idx.size, dtype=scratch.dtype)
+    scratch[idx] = order
+    return idx[scratch[idx] == order]
+
+
+def _median3_sparse(padded: np.ndarray, nonzero: np.ndarray,
+                    scratch: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """3 x 3 median (zero outside) of an image given zero-bordered as ``padded`` (H + 2, W + 2),
-    ``nonzero`` the flat indices (into ``padded``) of its nonzero pixels. A median of 9 values
-    is nonzero only where >= 5 of them are, so only pixels within one pixel of a nonzero one
-    are computed: returns (flat indices into ``padded``, their medians), every other pixel's
-    median being 0. The median is the 5th smallest of the 9 values: exact, any dtype."""
+    ``nonzero`` the distinct flat indices (into ``padded``) of its nonzero pixels. A median of
+    9 values is nonzero only where >= 5 of them are, so only pixels within one pixel of a
+    nonzero one are computed: returns (flat indices into ``padded``, their medians), every
+    other pixel's median being 0. The median is the 5th smallest of the 9 values: exact, any
+    dtype. ``scratch``: an int64 array of ``padded.size`` to reuse (else one is allocated)."""
     hp, wp = padded.shape
     offs = (np.arange(-1, 2)[:, None] * wp + np.arange(-1, 2)).ravel()      # 3 x 3, flat
     nonzero = np.asarray(nonzero, np.int64)
-    if 9 * len(nonzero) < padded.size // 8:        # sparse (a packet): sort the neighbours
-        cand = np.unique((nonzero[:, None] + offs).ravel())
-        r, c = np.divmod(cand, wp)
-        cand = cand[(r >= 1) & (r <= hp - 2) & (c >= 1) & (c <= wp - 2)]     # inside the image
+    if 9 * len(nonzero) < padded.size // 8:        # sparse (a packet): the neighbours, each once
+        near = (nonzero[:, None] + offs).ravel()
+        r, c = np.divmod(near, wp)
+        near = near[(r >= 1) & (r <= hp - 2) & (c >= 1) & (c <= wp - 2)]     # inside the image
+        cand = _each_once(near, np.empty(padded.size, np.int64) if scratch is None else scratch)
     else:                                          # dense (a whole recording): dilate a mask
         m = np.zeros(padded.size, bool)
         m[nonzero] = True
@@ -74,13 +86,14 @@ def _median3(img: np.ndarray) -> np.ndarray:
     return out[1:-1, 1:-1]
 
 
-def _esr_padded(padded: np.ndarray, nonzero: np.ndarray, n_events: int) -> float:
-    """ESR of a packet from its zero-bordered integer count image and the flat indices of
-    its nonzero pixels (see :func:`esr_packet`). Cost O(events), not O(pixels)."""
+def _esr_padded(padded: np.ndarray, nonzero: np.ndarray, n_events: int,
+                scratch: np.ndarray | None = None) -> float:
+    """ESR of a packet from its zero-bordered integer count image and the distinct flat
+    indices of its nonzero pixels (see :func:`esr_packet`). Cost O(events), not O(pixels)."""
     if n_events < 2 or len(nonzero) == 0:
         return float("nan")
     K = (padded.shape[0] - 2) * (padded.shape[1] - 2)
-    _, med = _median3_sparse(padded, nonzero)
+    _, med = _median3_sparse(padded, nonzero, scratch)
     med = med[med > 0].astype(np.int64)
     ntss = float((med * med).sum()) / float(n_events) ** 2
     # miss = sum over all K pixels of 0.5^n: K - (nonzero medians) ones, plus a histogram of
@@ -113,14 +126,16 @@ class EsrAccumulator:
         self.width, self.height, self.interval = int(width), int(height), int(interval_us)
         self._k: int | None = None
         self._padded = np.zeros((self.height + 2, self.width + 2), np.int64)
+        self._scratch = np.empty(self._padded.size, np.int64)
         self._touched: list[np.ndarray] = []
         self._n = 0
         self.values: list[float] = []
 
     def _open_value(self) -> float:
-        nz = np.unique(np.concatenate(self._touched)) if self._touched else np.zeros(0, np.int64)
+        nz = np.concatenate(self._touched) if self._touched else np.zeros(0, np.int64)
+        nz = _each_once(nz, self._scratch) if len(self._touched) > 1 else nz
         self._touched = [nz]
-        return _esr_padded(self._padded, nz, self._n)
+        return _esr_padded(self._padded, nz, self._n, self._scratch)
 
     def _close(self) -> None:
         if self._n:

@@ -144,3 +144,13 @@ def test_esr_packet_rejects_fractional_counts():
     c = np.zeros((4, 4)); c[1, 1] = 0.5
     with pytest.raises(ValidationError):
         esr_packet(c, 3)
+
+
+def test_each_once_gives_the_distinct_indices():
+    from rdnet.eval.noref import _each_once
+    rng = np.random.default_rng(5)
+    idx = rng.integers(0, 50, 300)
+    scratch = np.full(50, -7, np.int64)
+    got = _each_once(idx, scratch)
+    assert sorted(got.tolist()) == np.unique(idx).tolist() and len(got) == len(np.unique(idx))
+    assert idx.shape == (300,) and _each_once(idx[:0], scratch).size == 0
