@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from rdnet.eval.noref import (EsrAccumulator, activity_mask, esr_packet, esr_score, mask_fractions,
+from rdnet.errors import ValidationError
+from rdnet.eval.noref import (EsrAccumulator, _median3, activity_mask, esr_packet, esr_score, mask_fractions,
                               pixel_mask)
 from rdnet.events import Events
 
@@ -64,16 +65,92 @@ def test_mask_fractions_and_activity_mask():
     assert am[15, 35] and not am[40, 55]
 
 
-def test_esr_box_shortcut_equals_full_median():
+def _median3_ref(img):
+    """The reference: scipy's 3 x 3 median filter, zero outside."""
     from scipy.ndimage import median_filter
-    rng = np.random.default_rng(3)
-    for _ in range(20):
-        c = np.zeros((30, 40))
-        h, w = rng.integers(1, 30), rng.integers(1, 40)
-        y, x = rng.integers(0, 31 - h), rng.integers(0, 41 - w)
-        c[y:y + h, x:x + w] = rng.integers(0, 4, (h, w)) * (rng.random((h, w)) < 0.5)
+    return median_filter(img, size=3, mode="constant", cval=0)
+
+
+def _esr_ref(c, N):
+    """ESR from the module docstring's formula on the dense scipy median (float64)."""
+    n = _median3_ref(np.asarray(c, np.float64))
+    miss = float(np.power(0.5, n).sum())
+    return 1000.0 * float(np.sqrt(float((n * n).sum()) / float(N) ** 2 * ((c.size - miss) / c.size)))
+
+
+def _sparse_counts(rng, H, W, n_hits, border=False):
+    """(H, W) int64 count image: ``n_hits`` events on random pixels (clustered in a random
+    box, so medians are often nonzero), optionally also along the four image borders."""
+    c = np.zeros((H, W), np.int64)
+    h, w = rng.integers(1, H + 1), rng.integers(1, W + 1)
+    y0, x0 = rng.integers(0, H - h + 1), rng.integers(0, W - w + 1)
+    np.add.at(c, (rng.integers(y0, y0 + h, n_hits), rng.integers(x0, x0 + w, n_hits)), 1)
+    if border:
+        for sl in ((0, slice(None)), (-1, slice(None)), (slice(None), 0), (slice(None), -1)):
+            c[sl] += rng.integers(0, 3, c[sl].shape)
+    return c
+
+
+@pytest.mark.parametrize("H, W", [(1, 1), (1, 7), (5, 1), (2, 3), (30, 40), (72, 128)])
+def test_median3_and_esr_equal_scipy_reference(H, W):
+    rng = np.random.default_rng(H * 1000 + W)
+    for trial in range(12):
+        c = _sparse_counts(rng, H, W, int(rng.integers(0, 3 * H * W + 2)), border=trial % 3 == 0)
+        # both candidate paths of _median3_sparse: sparse (np.unique) and dense (dilation)
+        assert np.array_equal(_median3(c), _median3_ref(c))
+        assert np.array_equal(_median3(c.astype(np.float64)), _median3_ref(c.astype(np.float64)))
         N = int(c.sum()) + 2
-        n = median_filter(c, size=3, mode="constant", cval=0)
-        ref = 1000 * np.sqrt((n * n).sum() / N ** 2 * (c.size - np.power(0.5, n).sum()) / c.size)
         got = esr_packet(c, N)
-        assert (c.sum() == 0 and np.isnan(got)) or got == pytest.approx(ref, rel=1e-12)
+        assert (c.sum() == 0 and np.isnan(got)) or got == _esr_ref(c, N)       # bit-identical
+
+
+def test_esr_sparse_path_border_events_equal_reference():
+    # few events (the np.unique candidate path) on the corners and edges of a larger image
+    rng = np.random.default_rng(7)
+    H, W = 48, 64
+    for _ in range(20):
+        c = np.zeros((H, W), np.int64)
+        ys = rng.choice([0, 1, H - 2, H - 1], 30)
+        xs = rng.integers(0, W, 30)
+        np.add.at(c, (np.r_[ys, rng.integers(0, H, 10)], np.r_[xs, rng.choice([0, W - 1], 10)]), rng.integers(1, 5))
+        assert 9 * np.count_nonzero(c) < (H + 2) * (W + 2) // 8            # the sparse path
+        assert np.array_equal(_median3(c), _median3_ref(c))
+        assert esr_packet(c, int(c.sum())) == _esr_ref(c, int(c.sum()))
+
+
+def test_accumulator_equals_dense_reference_per_packet():
+    # the accumulator (chunks split inside packets) gives the reference ESR of every packet
+    rng = np.random.default_rng(4)
+    W, H, n = 50, 40, 6000
+    x = np.r_[rng.integers(0, W, n // 2), np.clip(rng.normal(25, 3, n // 2), 0, W - 1).astype(int)]
+    y = np.r_[rng.integers(0, H, n // 2), np.clip(rng.normal(0, 4, n // 2), 0, H - 1).astype(int)]
+    ev = _events(x, y, rng.integers(0, 330_000, n), W, H)
+    acc = EsrAccumulator(W, H, 33_000)
+    for i in range(0, n, 777):
+        acc.add(ev[i:i + 777])
+    acc.add(ev[:0])
+    k = ev.t // 33_000
+    ref = []
+    for p in np.unique(k):
+        sel = k == p
+        c = np.zeros((H, W), np.int64)
+        np.add.at(c, (ev.y[sel], ev.x[sel]), 1)
+        ref.append(_esr_ref(c, int(sel.sum())))
+    assert acc.values == ref[:-1]                     # closed packets, bit-identical
+    assert acc.score() == float(np.mean(ref))
+
+
+def test_esr_packet_rejects_fractional_counts():
+    c = np.zeros((4, 4)); c[1, 1] = 0.5
+    with pytest.raises(ValidationError):
+        esr_packet(c, 3)
+
+
+def test_each_once_gives_the_distinct_indices():
+    from rdnet.eval.noref import _each_once
+    rng = np.random.default_rng(5)
+    idx = rng.integers(0, 50, 300)
+    scratch = np.full(50, -7, np.int64)
+    got = _each_once(idx, scratch)
+    assert sorted(got.tolist()) == np.unique(idx).tolist() and len(got) == len(np.unique(idx))
+    assert idx.shape == (300,) and _each_once(idx[:0], scratch).size == 0
