@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rdnet.cli.common import add_params_args, load_cli_params
+from rdnet.config import add_params_args, load_cli_params
 from rdnet.cli.info import add_sensor_size_args, sensor_size_of
 
 METHOD_CHOICES = ("rdnet", "baf", "stcf", "gef", "raw")
