@@ -46,6 +46,7 @@ from rdnet.calib.engine import simulate_random_start
 from rdnet.calib.fit import default_simulate
 from rdnet.calib.scene import SceneSpec, render
 from rdnet.calib.settings import CalibrateConfig
+from rdnet.errors import ValidationError
 from rdnet.events.recording import Frames, Recording
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
@@ -157,7 +158,7 @@ def cases_for(generator: str = "both", quick: bool = False) -> dict[str, tuple[P
     """Case lists per generator ('rdnet', 'circuit' or 'both'), each run with its own
     scene generator; ``quick``: only :data:`QUICK`."""
     if generator not in ("rdnet", "circuit", "both"):
-        raise ValueError(f"unknown generator {generator!r}")
+        raise ValidationError("generator", f"expected rdnet, circuit or both, got {generator!r}")
     lists = {"rdnet": CASES + RDNET_EXTRA_CASES, "circuit": CIRCUIT_CASES}
     out = {g: lists[g] for g in ("rdnet", "circuit") if generator in (g, "both")}
     if quick:

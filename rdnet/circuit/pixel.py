@@ -38,10 +38,12 @@ Noise and defects:
 
 Integration: the input intensity is linear in time between the input frames; each frame
 interval is cut into sub-steps of at most ``max_step_us``. Per sub-step the log input is
-linear in time (first-order hold) and both low-passes are advanced with the exact
+linear in time (first-order hold) and the photoreceptor is advanced with the exact
 exponential integrator of a first-order system driven by a ramp, at the rate of the
-sub-step's mid intensity; ``v_s`` is linear inside a sub-step, so comparator crossing
-times are exact for that path. Random numbers are drawn in numpy from an explicit
+sub-step's mid intensity; the follower is advanced the same way with its input taken as a
+ramp between the photoreceptor's values at the sub-step ends. ``v_s`` is taken linear
+inside a sub-step, so comparator crossing times are exact for that path. Random numbers
+are drawn in numpy from an explicit
 ``Generator`` and passed in, so runs are reproducible bit for bit.
 """
 from __future__ import annotations
@@ -146,8 +148,8 @@ def advance(I0, I1, t0, t1, nsub, i_dark, w_p_us, w_s_us, sigma_v_us, refr, shot
     ``shot_us``/``shot_half``: shot-noise rate in the dark (per us) and the intensity that
     halves it; ``leak_us``: per-pixel leak rate (per us). State arrays ``vp, vs, vmem,
     wake`` are updated in place. ``u_noise``/``u_pol``/``z``: (P, nsub) random numbers
-    (``u_noise``/``u_pol`` unused without shot noise, ``z`` without voltage noise). Events go to ``ot`` (time, us, float),
-    ``op`` (polarity) and ``ox`` (flat pixel index); returns their count, -1 when the
+    (``u_noise``/``u_pol`` unused without shot noise, ``z`` without voltage noise). Events
+    go to ``ot`` (time, us, float), ``op`` (polarity) and ``ox`` (flat pixel index); returns their count, -1 when the
     buffers are too small (the caller then retries with larger ones from saved state)."""
     P = I0.shape[0]
     h = (t1 - t0) / nsub

@@ -7,6 +7,7 @@ import pytest
 from rdnet.calib.effects import EFFECTS
 from rdnet.calib.proof import CASES, CIRCUIT_CASES, QUICK, ProofCase, cases_for, make_recording
 from rdnet.calib.scene import SceneSpec
+from rdnet.errors import ValidationError
 from rdnet.sim.interpolate import InterpolateConfig
 from rdnet.sim.settings import SensorConfig
 
@@ -36,7 +37,7 @@ def test_every_effect_on_both_generators_two_strengths_two_scenes_and_three_null
     assert lists["rdnet"][:len(CASES)] == CASES
     quick = cases_for("both", quick=True)
     assert {c.name for cs in quick.values() for c in cs} == set(QUICK)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValidationError):
         cases_for("v2e")
 
 
