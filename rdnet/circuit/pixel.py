@@ -43,8 +43,8 @@ exponential integrator of a first-order system driven by a ramp, at the rate of 
 sub-step's mid intensity; the follower is advanced the same way with its input taken as a
 ramp between the photoreceptor's values at the sub-step ends. ``v_s`` is taken linear
 inside a sub-step, so comparator crossing times are exact for that path. Random numbers
-are drawn in numpy from an explicit
-``Generator`` and passed in, so runs are reproducible bit for bit.
+are drawn in numpy from an explicit ``Generator`` and passed in, so runs are reproducible
+bit for bit.
 """
 from __future__ import annotations
 
