@@ -57,6 +57,10 @@ def _configs_dict(sensor: SensorConfig, degrade: DegradeConfig) -> dict:
     return {"sensor": to_dict(sensor), "degrade": to_dict(degrade)}
 
 
+def _finite(v: float) -> float | None:
+    return float(v) if np.isfinite(v) else None
+
+
 def _evidence(c, fit: FitResult) -> str:
     top = sorted(c.term_gains.items(), key=lambda kv: -kv[1])[:2]
     terms = ", ".join(f"{k} {v:+.3f}" for k, v in top)
@@ -185,6 +189,8 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
             "fitted": bool(c.fitted) if c else False,
             "screen_gain": float(c.screen_gain) if c else 0.0,
             "statistic": eff.statistic,
+            "signature": ({"heldout_before": _finite(c.signature_before), "heldout_after": _finite(c.signature_after),
+                           "z": _finite(c.signature_z)} if c else None),
         })
     effects.sort(key=lambda e: (not e["missing"], e["rank"] or 99))
 

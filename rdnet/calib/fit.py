@@ -539,6 +539,9 @@ class Candidate:
     term_gains: dict = field(default_factory=dict)
     screen_gain: float = 0.0    # fit-discrepancy drop of its best screen point (search level)
     fitted: bool = False        # passed the screen and was fitted
+    signature_before: float = float("nan")  # held-out term of the effect's own statistic, before
+    signature_after: float = float("nan")   # ... with the effect (diagnostic; not used to name)
+    signature_z: float = float("nan")       # its drop / its seed spread (as ``z``, ablation included)
 
 
 def _gain(before: Evaluation, after: Evaluation) -> tuple[float, float]:
@@ -576,11 +579,38 @@ def score(cand: Candidate, before: Evaluation, cfg, ablated: Evaluation | None =
     cand.significant = bool(cand.z > cfg.significance and cand.relative > cfg.min_relative_gain)
     cand.term_gains = {k: float((before.held_terms[k] - after.held_terms[k]).mean())
                        for k in after.held_terms}
+    _signature(cand, before, ablated)
     zc = 1.0 / (1.0 + math.exp(-min(50.0, max(-50.0, cand.z - cfg.significance))))
     rel_scale = max(cfg.min_relative_gain, 1e-3)
     rc = 1.0 / (1.0 + math.exp(-min(50.0, max(-50.0, 5.0 * (cand.relative - cfg.min_relative_gain) / rel_scale))))
     cand.confidence = float(min(zc, rc))
     return cand
+
+
+def _signature(cand: Candidate, before: Evaluation, ablated: Evaluation | None) -> None:
+    """The held-out term of the effect's own statistic (``Effect.statistic``) before and
+    after, and its drop in units of its seed spread (floored as in :func:`_gain`; the
+    smaller drop against ``before`` and ``ablated``, as for the gain). A diagnostic of
+    model mismatch: an effect whose gain comes from other statistics than its own
+    signature explains a structural difference, not its physics. Not used to name."""
+    name = cand.effect.statistic
+    after = cand.evaluation
+    if name not in after.held_terms or name not in before.held_terms:
+        return
+
+    def drop(b: np.ndarray, a: np.ndarray) -> float:
+        g = float((b - a).mean())
+        n = min(b.size, a.size)
+        sd = math.sqrt(0.5 * (b.var(ddof=1) + a.var(ddof=1))) if n > 1 else 0.0
+        return g / max(sd, SPREAD_FLOOR * float(b.mean()), 1e-12)
+
+    a = after.held_terms[name]
+    z = drop(before.held_terms[name], a)
+    if ablated is not None and name in ablated.held_terms:
+        z = min(z, drop(ablated.held_terms[name], a))
+    cand.signature_before = float(before.held_terms[name].mean())
+    cand.signature_after = float(a.mean())
+    cand.signature_z = float(z)
 
 
 def ablate(values: dict, effect: Effect) -> dict:
