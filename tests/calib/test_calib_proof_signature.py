@@ -40,3 +40,22 @@ def test_signature_missing_statistic_stays_nan():
     before = evaluation({"lag": [1.0, 1.1, 0.9]})
     c = score(Candidate(EFFECTS["hot_pixels"], {}, evaluation({"lag": [0.5, 0.6, 0.4]})), before, CalibrateConfig())
     assert math.isnan(c.signature_z)
+
+
+def test_signature_gate_vetoes_a_gain_that_comes_from_other_statistics():
+    cfg = CalibrateConfig()
+    before = evaluation({"static_on_fraction": [0.10, 0.11, 0.09], "rate_map": [3.0, 3.1, 2.9]})
+    # a large, significant held-out gain, but all of it in rate_map: leak's own statistic is flat
+    elsewhere = evaluation({"static_on_fraction": [0.10, 0.11, 0.09], "rate_map": [2.0, 2.1, 1.9]})
+    c = score(Candidate(EFFECTS["leak_events"], {}, elsewhere), before, cfg)
+    assert c.z > cfg.significance and c.relative > cfg.min_relative_gain
+    assert c.vetoed and not c.significant
+    assert c.confidence < 0.5
+    # the same gain with the signature moving too is named
+    own = evaluation({"static_on_fraction": [0.02, 0.03, 0.01], "rate_map": [2.08, 2.18, 1.98]})
+    c2 = score(Candidate(EFFECTS["leak_events"], {}, own), before, cfg)
+    assert c2.significant and not c2.vetoed and c2.confidence > 0.5
+    # an insignificant gain is not "vetoed" (the gate only removes what the gain would name)
+    tiny = evaluation({"static_on_fraction": [0.10, 0.11, 0.09], "rate_map": [2.99, 3.09, 2.89]})
+    c3 = score(Candidate(EFFECTS["leak_events"], {}, tiny), before, cfg)
+    assert not c3.significant and not c3.vetoed
