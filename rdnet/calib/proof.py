@@ -165,6 +165,7 @@ def cases_for(generator: str = "both", quick: bool = False) -> dict[str, tuple[P
         out = {g: tuple(c for c in cs if c.name in QUICK) for g, cs in out.items()}
     return out
 
+
 def _truth_events(frames, sensor, degrade, seed):
     """The "real" events: the simulator with every pixel started at a random point between
     its thresholds (a recording starts in an unknown pixel state), the same draws for every
@@ -180,10 +181,6 @@ def _circuit_events(frames, sensor, degrade, seed, extra=()):
     from rdnet.circuit import from_degrade, generate
     return generate(frames.images, frames.t_us, from_degrade(sensor, degrade, **dict(extra)),
                     np.random.default_rng(seed), random_start=True)
-
-
-def _count(frames, sensor, degrade, seed) -> int:
-    return len(_truth_events(frames, sensor, degrade, seed))
 
 
 def make_recording(case: ProofCase, spec: SceneSpec, sensor: SensorConfig, rng: np.random.Generator,
