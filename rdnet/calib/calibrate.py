@@ -1,6 +1,7 @@
 """``rdnet calibrate``: simulate a recording from its frames, locate where the events
 differ from the recorded ones, re-fit the configured parameters, name the missing
-effects (held-out gain significant against the seed spread) and fit them.
+effects (held-out gain significant against the seed spread, and the effect's own statistic
+moved: the signature gate of :mod:`rdnet.calib.fit`) and fit them.
 
 Use::
 
@@ -24,7 +25,7 @@ from tqdm.auto import tqdm
 from rdnet.calib.consistency import consistency
 from rdnet.calib.context import CalibContext, build_context, subsample_context
 from rdnet.calib.effects import absent_effects, apply
-from rdnet.calib.fit import FitResult, Objective, SimulateFn, calibrate_fit, fit_basic, screen_gains
+from rdnet.calib.fit import SIGNATURE_Z, FitResult, Objective, SimulateFn, calibrate_fit, fit_basic, screen_gains
 from rdnet.calib.locate import residuals, where
 from rdnet.calib.settings import CalibrateConfig
 from rdnet.calib.stats import STATISTICS
@@ -57,6 +58,10 @@ def _configs_dict(sensor: SensorConfig, degrade: DegradeConfig) -> dict:
     return {"sensor": to_dict(sensor), "degrade": to_dict(degrade)}
 
 
+def _finite(v: float) -> float | None:
+    return float(v) if np.isfinite(v) else None
+
+
 def _evidence(c, fit: FitResult) -> str:
     top = sorted(c.term_gains.items(), key=lambda kv: -kv[1])[:2]
     terms = ", ".join(f"{k} {v:+.3f}" for k, v in top)
@@ -64,6 +69,10 @@ def _evidence(c, fit: FitResult) -> str:
         f"not fitted (its best screen point lowered the fit discrepancy by {c.screen_gain:+.3f}: below "
         f"calibrate.screen_gain, or not among the calibrate.max_fitted best screened), so never named; "
         f"that point on the search sample, {len(c.evaluation.held)} seed(s): ")
+    if c.vetoed:
+        head += (f"not named: its gain is significant but its own statistic ({c.effect.statistic}) moved only "
+                 f"{c.signature_z:.1f} seed std ({c.signature_before:.3f} -> {c.signature_after:.3f}; the signature "
+                 f"gate needs > {SIGNATURE_Z:g}): a structural difference, not this effect; ")
     return (head + f"held-out discrepancy {c.before_held:.3f} -> {c.evaluation.held_mean:.3f} with it "
             f"({c.ablated_held:.3f} in its own fit with it switched off); credited gain {c.gain:.3f} "
             f"= {c.z:.1f} x seed std {c.spread:.3f} ({100 * c.relative:.1f} %, round {c.round}); "
@@ -185,6 +194,8 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
             "fitted": bool(c.fitted) if c else False,
             "screen_gain": float(c.screen_gain) if c else 0.0,
             "statistic": eff.statistic,
+            "signature": ({"heldout_before": _finite(c.signature_before), "heldout_after": _finite(c.signature_after),
+                           "z": _finite(c.signature_z), "vetoed": bool(c.vetoed)} if c else None),
         })
     effects.sort(key=lambda e: (not e["missing"], e["rank"] or 99))
 

@@ -35,7 +35,10 @@ Steps:
 4. **Forward selection**: every fitted candidate is scored at the final level: its held-out
    gain (against the current config and against its own fit with the effect switched off)
    must exceed ``significance`` x the seed spread and ``min_relative_gain`` of the held-out
-   discrepancy after the basic refit. The best significant candidate is added; the other
+   discrepancy after the basic refit, and the held-out term of the effect's own statistic
+   must drop by more than ``SIGNATURE_Z`` of its seed spread (the signature gate; a
+   candidate that fails only the gate is *vetoed* and skipped in the selection). The best
+   significant candidate is added; the other
    fitted candidates that helped are tried again at their fit on top of it, and fitted
    again if still plausible (at most ``max_effects`` rounds). Effects that do not pass the
    screen are reported with their search-level numbers and cannot be named.
@@ -77,6 +80,12 @@ SPREAD_FLOOR = 0.01
 SUMMARY_CACHE = 64
 #: count mismatch (log ratio) a screen point may keep; the fits match to 2 %
 SCREEN_COUNT_TOL = 0.05
+#: an effect is named only if the held-out term of its own statistic (``Effect.statistic``)
+#: drops by more than this many of its seed spreads (the signature gate: a gain that comes
+#: from other statistics is a structural model difference, not the effect's physics).
+#: 0: the own statistic must improve at all. 2 was tried: on the circuit-generator proof it
+#: vetoed a correct latency (lag term 0.43 -> 0.35, 1.0 seed std; README)
+SIGNATURE_Z = 0.0
 #: confidence ceiling of an effect that did not pass the screen (it cannot be named)
 SCREENED_CONFIDENCE = 0.25
 
@@ -539,6 +548,10 @@ class Candidate:
     term_gains: dict = field(default_factory=dict)
     screen_gain: float = 0.0    # fit-discrepancy drop of its best screen point (search level)
     fitted: bool = False        # passed the screen and was fitted
+    signature_before: float = float("nan")  # held-out term of the effect's own statistic, before
+    signature_after: float = float("nan")   # ... with the effect (diagnostic; not used to name)
+    signature_z: float = float("nan")       # its drop / its seed spread (as ``z``, ablation included)
+    vetoed: bool = False        # significant by its gain, but its own statistic did not move
 
 
 def _gain(before: Evaluation, after: Evaluation) -> tuple[float, float]:
@@ -576,11 +589,45 @@ def score(cand: Candidate, before: Evaluation, cfg, ablated: Evaluation | None =
     cand.significant = bool(cand.z > cfg.significance and cand.relative > cfg.min_relative_gain)
     cand.term_gains = {k: float((before.held_terms[k] - after.held_terms[k]).mean())
                        for k in after.held_terms}
+    _signature(cand, before, ablated)
+    # the signature gate (a statistic the recording lacks, NaN, cannot veto)
+    if cand.significant and cand.signature_z <= SIGNATURE_Z:
+        cand.significant, cand.vetoed = False, True
     zc = 1.0 / (1.0 + math.exp(-min(50.0, max(-50.0, cand.z - cfg.significance))))
     rel_scale = max(cfg.min_relative_gain, 1e-3)
     rc = 1.0 / (1.0 + math.exp(-min(50.0, max(-50.0, 5.0 * (cand.relative - cfg.min_relative_gain) / rel_scale))))
     cand.confidence = float(min(zc, rc))
+    if cand.vetoed:
+        # <= 0.25, falling as the own statistic gets worse
+        sc = 1.0 / (1.0 + math.exp(-min(50.0, max(-50.0, cand.signature_z - SIGNATURE_Z))))
+        cand.confidence = float(min(cand.confidence, 0.5 * sc))
     return cand
+
+
+def _signature(cand: Candidate, before: Evaluation, ablated: Evaluation | None) -> None:
+    """The held-out term of the effect's own statistic (``Effect.statistic``) before and
+    after, and its drop in units of its seed spread (floored as in :func:`_gain`; the
+    smaller drop against ``before`` and ``ablated``, as for the gain). An effect whose gain
+    comes from other statistics than its own signature explains a structural difference
+    between the models, not its physics (:data:`SIGNATURE_Z`)."""
+    name = cand.effect.statistic
+    after = cand.evaluation
+    if name not in after.held_terms or name not in before.held_terms:
+        return
+
+    def drop(b: np.ndarray, a: np.ndarray) -> float:
+        g = float((b - a).mean())
+        n = min(b.size, a.size)
+        sd = math.sqrt(0.5 * (b.var(ddof=1) + a.var(ddof=1))) if n > 1 else 0.0
+        return g / max(sd, SPREAD_FLOOR * float(b.mean()), 1e-12)
+
+    a = after.held_terms[name]
+    z = drop(before.held_terms[name], a)
+    if ablated is not None and name in ablated.held_terms:
+        z = min(z, drop(ablated.held_terms[name], a))
+    cand.signature_before = float(before.held_terms[name].mean())
+    cand.signature_after = float(a.mean())
+    cand.signature_z = float(z)
 
 
 def ablate(values: dict, effect: Effect) -> dict:
@@ -677,7 +724,7 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
                 v = dict(min(evs, key=lambda e: e.fit_mean).values)
                 c = score(Candidate(eff, v, obj(v), round=rnd, screen_gain=sgain, fitted=False),
                           obj(current), cfg, obj(ablate(v, eff)), reference=obj(values).held_mean)
-                c.significant = False
+                c.significant = c.vetoed = False
                 c.confidence = min(c.confidence, SCREENED_CONFIDENCE)
             log.info("round %d %-19s gain %.4f (z %.1f, rel %.3f)%s %s", rnd, eff.name, c.gain, c.z, c.relative,
                      "" if c.fitted else " [screened out]",
@@ -688,7 +735,8 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
         round_c.sort(key=lambda c: (not c.fitted, -c.gain))
         if rnd == 1:
             first_round = list(round_c)
-        best = round_c[0]
+        # a vetoed candidate (its gain without its signature) is skipped, not a stop
+        best = next((c for c in round_c if not c.vetoed), round_c[0])
         if not best.significant:
             break
         selected.append(best)

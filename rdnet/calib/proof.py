@@ -19,6 +19,15 @@ returns per-case metrics: the named effects, the rank of the true effect among t
 candidates (by held-out gain), the relative error of its parameters, and the held-out
 discrepancy before (base config) and after (fitted config), raw and as excess over the
 noise floor (the discrepancy of the fitted simulator against itself with other seeds).
+
+Two generators make the "real" events (``ProofCase.generator``): ``rdnet`` (the simulator
+the calibration fits, as above) and ``circuit`` (:mod:`rdnet.circuit`, an independent
+continuous-time pixel-circuit model that shares no code with it), which takes frames
+rendered ``circuit_oversample`` times denser than the recorded ones from the same analytic
+scene and gets the true config through :func:`rdnet.circuit.from_degrade`. The case lists:
+:data:`CASES` (the original rdnet cases, unchanged), :data:`RDNET_EXTRA_CASES` and
+:data:`CIRCUIT_CASES` (every concealed effect at two strengths and on two scenes, and three
+null cases per generator); :func:`cases_for` selects them, ``quick=True`` a small subset.
 """
 from __future__ import annotations
 
@@ -37,6 +46,7 @@ from rdnet.calib.engine import simulate_random_start
 from rdnet.calib.fit import default_simulate
 from rdnet.calib.scene import SceneSpec, render
 from rdnet.calib.settings import CalibrateConfig
+from rdnet.errors import ValidationError
 from rdnet.events.recording import Frames, Recording
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
@@ -48,7 +58,10 @@ class ProofCase:
     """``effect``: the concealed effect (None: a null case). ``base``/``truth``: degrade
     values of the base and the true config; ``truth_threshold_scale``: factor of the true
     thresholds; ``compensate``: the parameter solved so the true event count matches the
-    base ('threshold_scale' or a degrade key; None: no concealment needed)."""
+    base ('threshold_scale' or a degrade key; None: no concealment needed).
+    ``generator``: 'rdnet' or 'circuit' (the model of the true events); ``scene``:
+    :class:`SceneSpec` overrides of the recording (e.g. another texture or frame rate);
+    ``circuit``: extra :class:`rdnet.circuit.CircuitParams` values of a circuit truth."""
 
     name: str
     effect: str | None
@@ -57,6 +70,9 @@ class ProofCase:
     truth_threshold_scale: float = 1.0
     compensate: str | None = "threshold_scale"
     motion: str = "drift"
+    generator: str = "rdnet"
+    scene: tuple = ()               # SceneSpec overrides, ((field, value), ...)
+    circuit: tuple = ()             # CircuitParams fields of the truth beyond the degrade keys
 
 
 #: The concealed cases of the issue, and two null cases.
@@ -77,6 +93,79 @@ CASES: tuple[ProofCase, ...] = (
 )
 
 
+#: the second scene: coarser texture, faster motion, a less dark left half
+SCENE_B: tuple = (("texture_px", 2.0), ("speed_px_s", 250.0), ("amplitude_px", 10.0), ("dark_gain", 0.1))
+
+#: (name, effect, base, truth at strength 1, truth at strength 2, compensate, motion)
+_EFFECT_TEMPLATES = (
+    ("refractory_vs_lower_thresholds", "refractory_period", {}, {"refractory_us": 5000.0},
+     {"refractory_us": 2000.0}, "threshold_scale", "drift"),
+    ("leak_under_shot_noise", "leak_events", {"shot_noise_hz": 2.0}, {"leak_hz": 0.6, "shot_noise_hz": 1.0},
+     {"leak_hz": 1.5, "shot_noise_hz": 1.0}, "shot_noise_hz", "drift"),
+    ("bandwidth_in_the_dark", "bandwidth", {}, {"cutoff_hz": 100.0}, {"cutoff_hz": 300.0}, "threshold_scale", "drift"),
+    ("hot_pixels_in_noise", "hot_pixels", {"shot_noise_hz": 3.0},
+     {"hot_pixel_fraction": 0.005, "hot_pixel_hz": 100.0, "shot_noise_hz": 2.0},
+     {"hot_pixel_fraction": 0.01, "hot_pixel_hz": 40.0, "shot_noise_hz": 2.0}, "shot_noise_hz", "drift"),
+    ("asymmetry_back_and_forth", "onoff_asymmetry", {}, {"onoff_ratio": 1.5}, {"onoff_ratio": 1.25},
+     "threshold_scale", "backforth"),
+    ("latency_with_jitter", "latency", {"jitter_us": 1000.0}, {"jitter_us": 1000.0, "latency_us": 4000.0},
+     {"jitter_us": 1000.0, "latency_us": 1500.0}, None, "drift"),
+    ("threshold_mismatch", "threshold_mismatch", {}, {"threshold_sigma": 0.2}, {"threshold_sigma": 0.1},
+     "threshold_scale", "drift"),
+)
+
+
+def _null_cases(generator: str, prefix: str) -> tuple[ProofCase, ...]:
+    """The three nulls of the issue: declared values right; only the thresholds off; the
+    recording's frames at another rate (60 instead of 100 fps), declared values right."""
+    declared = {"shot_noise_hz": 1.0, "jitter_us": 300.0}
+    return (ProofCase(f"{prefix}null_declared_right", None, declared, declared, compensate=None, generator=generator),
+            ProofCase(f"{prefix}null_thresholds", None, {}, {}, truth_threshold_scale=1.3, compensate=None,
+                      generator=generator),
+            ProofCase(f"{prefix}null_frame_rate_60", None, declared, declared, compensate=None, generator=generator,
+                      scene=(("fps_hz", 60.0),)))
+
+
+def _effect_cases(generator: str, prefix: str, skip: frozenset = frozenset()) -> tuple[ProofCase, ...]:
+    out = []
+    for name, effect, base, t1, t2, comp, motion in _EFFECT_TEMPLATES:
+        for strength, truth in (("s1", t1), ("s2", t2)):
+            for scene_name, scene in (("A", ()), ("B", SCENE_B)):
+                if (name, strength, scene_name) in skip:
+                    continue
+                out.append(ProofCase(f"{prefix}{name}_{strength}{scene_name}", effect, base, truth, compensate=comp,
+                                     motion=motion, generator=generator, scene=scene))
+    return tuple(out)
+
+
+#: rdnet-generator cases beyond :data:`CASES` (which are the s1 / scene A ones of the six
+#: original effects): the other strength and scene, threshold mismatch, and the nulls
+#: that :data:`CASES` lacks. Run after :data:`CASES`, so those keep their results.
+RDNET_EXTRA_CASES: tuple[ProofCase, ...] = _effect_cases(
+    "rdnet", "", frozenset((t[0], "s1", "A") for t in _EFFECT_TEMPLATES[:6])) + tuple(
+    c for c in _null_cases("rdnet", "") if c.name != "null_thresholds")
+
+#: Circuit-generator cases: every concealed effect at two strengths on two scenes, and three nulls.
+CIRCUIT_CASES: tuple[ProofCase, ...] = _null_cases("circuit", "circuit_") + _effect_cases("circuit", "circuit_")
+
+#: the ``quick`` subset (names)
+QUICK = ("null_thresholds", "latency_with_jitter", "refractory_vs_lower_thresholds",
+         "circuit_null_declared_right", "circuit_null_thresholds", "circuit_latency_with_jitter_s1A",
+         "circuit_refractory_vs_lower_thresholds_s1A")
+
+
+def cases_for(generator: str = "both", quick: bool = False) -> dict[str, tuple[ProofCase, ...]]:
+    """Case lists per generator ('rdnet', 'circuit' or 'both'), each run with its own
+    scene generator; ``quick``: only :data:`QUICK`."""
+    if generator not in ("rdnet", "circuit", "both"):
+        raise ValidationError("generator", f"expected rdnet, circuit or both, got {generator!r}")
+    lists = {"rdnet": CASES + RDNET_EXTRA_CASES, "circuit": CIRCUIT_CASES}
+    out = {g: lists[g] for g in ("rdnet", "circuit") if generator in (g, "both")}
+    if quick:
+        out = {g: tuple(c for c in cs if c.name in QUICK) for g, cs in out.items()}
+    return out
+
+
 def _truth_events(frames, sensor, degrade, seed):
     """The "real" events: the simulator with every pixel started at a random point between
     its thresholds (a recording starts in an unknown pixel state), the same draws for every
@@ -87,30 +176,45 @@ def _truth_events(frames, sensor, degrade, seed):
                                  np.random.default_rng([seed, 7]))
 
 
-def _count(frames, sensor, degrade, seed) -> int:
-    return len(_truth_events(frames, sensor, degrade, seed))
+def _circuit_events(frames, sensor, degrade, seed, extra=()):
+    """The "real" events from the independent circuit model (:mod:`rdnet.circuit`)."""
+    from rdnet.circuit import from_degrade, generate
+    return generate(frames.images, frames.t_us, from_degrade(sensor, degrade, **dict(extra)),
+                    np.random.default_rng(seed), random_start=True)
 
 
 def make_recording(case: ProofCase, spec: SceneSpec, sensor: SensorConfig, rng: np.random.Generator,
-                   oversample: int = 1, interpolate=None) -> tuple[Recording, dict]:
+                   oversample: int = 1, interpolate=None, circuit_oversample: int = 4) -> tuple[Recording, dict]:
     """The concealed recording of ``case`` and the truth: ``{"degrade": {...},
-    "threshold_scale": s, "base_count": n, "count": n, "uncompensated_count": n}``.
+    "threshold_scale": s, "base_count": n, "count": n, "uncompensated_count": n}`` (and
+    ``"circuit"``: the full circuit parameters, for a circuit case).
 
-    ``oversample`` > 1: the true events come from frames rendered that many times denser
-    than the recorded ones (the calibration must then also absorb its own interpolation
-    error); 1: from the recorded frames upsampled exactly as the calibration will
-    (``interpolate``), so the only difference is the concealed effect."""
-    spec = dataclasses.replace(spec, motion=case.motion)
+    rdnet generator: ``oversample`` > 1: the true events come from frames rendered that many
+    times denser than the recorded ones (the calibration must then also absorb its own
+    interpolation error); 1: from the recorded frames upsampled exactly as the calibration
+    will (``interpolate``), so the only difference is the concealed effect. Circuit
+    generator: always from frames rendered ``circuit_oversample`` times denser (the circuit
+    interpolates linearly between them and integrates in sub-steps)."""
+    spec = dataclasses.replace(spec, motion=case.motion, **dict(case.scene))
     frames, tex = render(spec, rng)
-    if oversample > 1:
+    circuit = case.generator == "circuit"
+    if circuit:
+        fine, _ = render(spec, rng, fps_hz=spec.fps_hz * circuit_oversample, texture=tex)
+    elif oversample > 1:
         fine, _ = render(spec, rng, fps_hz=spec.fps_hz * oversample, texture=tex)
     else:
         from rdnet.sim.interpolate import InterpolateConfig, upsample_all
         im, t = upsample_all(frames.images, frames.t_us, interpolate or InterpolateConfig(), sensor.log_eps)
         fine = Frames(im, t, np.zeros(len(t), np.int64))
     seed = int(rng.integers(1 << 30)) + 10_000_000          # never one of the calibration seeds
+    if circuit:
+        def events_of(s_, d_):
+            return _circuit_events(fine, s_, d_, seed, case.circuit)
+    else:
+        def events_of(s_, d_):
+            return _truth_events(fine, s_, d_, seed)
     base_deg = DegradeConfig(**case.base)
-    n_base = _count(fine, sensor, base_deg, seed)
+    n_base = len(events_of(sensor, base_deg))
     values = dict(case.truth)
     values["threshold_scale"] = case.truth_threshold_scale
 
@@ -119,7 +223,7 @@ def make_recording(case: ProofCase, spec: SceneSpec, sensor: SensorConfig, rng: 
         if v is not None:
             vals[case.compensate] = v
         s, d = apply(sensor, DegradeConfig(), vals)
-        return _count(fine, s, d, seed)
+        return len(events_of(s, d))
 
     n_unc = count_with(None)
     if case.compensate is not None:
@@ -130,7 +234,8 @@ def make_recording(case: ProofCase, spec: SceneSpec, sensor: SensorConfig, rng: 
         lo, hi = math.log(start) - 3.0, math.log(start) + 3.0
         if key != "threshold_scale":
             lo = math.log(1e-4)
-        for _ in range(16):
+        # the circuit is slower to run: 12 halvings (bracket / 4096) instead of 16
+        for _ in range(12 if circuit else 16):
             mid = 0.5 * (lo + hi)
             too_many = count_with(math.exp(mid)) > n_base
             if too_many == (sign > 0):
@@ -139,11 +244,15 @@ def make_recording(case: ProofCase, spec: SceneSpec, sensor: SensorConfig, rng: 
                 lo = mid
         values[key] = math.exp(0.5 * (lo + hi))
     s, d = apply(sensor, DegradeConfig(), values)
-    events = _truth_events(fine, s, d, seed)
-    rec = Recording(spec.width, spec.height, events=events, frames=frames, sensor="proof scene")
+    events = events_of(s, d)
+    rec = Recording(spec.width, spec.height, events=events, frames=frames,
+                    sensor="proof scene (circuit generator)" if circuit else "proof scene")
     truth = {"degrade": {k: float(getattr(d, k)) for k in d.active()},
              "threshold_scale": float(values["threshold_scale"]), "base_count": n_base,
-             "count": len(events), "uncompensated_count": n_unc}
+             "count": len(events), "uncompensated_count": n_unc, "generator": case.generator}
+    if circuit:
+        from rdnet.circuit import from_degrade
+        truth["circuit"] = dataclasses.asdict(from_degrade(s, d, **dict(case.circuit)))
     return rec, truth
 
 
@@ -151,7 +260,7 @@ def case_metrics(case: ProofCase, report: dict, truth: dict) -> dict:
     """Named effects, rank and parameter error of the true effect, discrepancies."""
     named = [e["name"] for e in report["effects"] if e["missing"]]
     d = report["discrepancy"]
-    out = {"case": case.name, "true_effect": case.effect, "named": named,
+    out = {"case": case.name, "true_effect": case.effect, "generator": case.generator, "named": named,
            "heldout_before": d["heldout_before"], "heldout_after": d["heldout_after"],
            "heldout_ratio": d["heldout_after"] / d["heldout_before"] if d["heldout_before"] > 0 else float("nan"),
            "heldout_noise_floor": d["heldout_noise_floor"],
@@ -188,7 +297,7 @@ def case_metrics(case: ProofCase, report: dict, truth: dict) -> dict:
 def run_proof(cases: Sequence[ProofCase] | None, out_dir: str | Path | None, rng: np.random.Generator, *,
               spec: SceneSpec = SceneSpec(), sensor: SensorConfig = SensorConfig(),
               cfg: CalibrateConfig = CalibrateConfig(), oversample: int = 1, interpolate=None,
-              seed: int = 0) -> dict:
+              seed: int = 0, circuit_oversample: int = 4) -> dict:
     """Run the calibration blind on every case; write each case's report under
     ``out_dir/<case>/`` (when given) and return ``{"cases": [...], "summary": {...}}``."""
     from rdnet.calib.report import write_json, write_report
@@ -196,7 +305,7 @@ def run_proof(cases: Sequence[ProofCase] | None, out_dir: str | Path | None, rng
     results = []
     for case in cases:
         with numba_threads(cfg.threads):
-            rec, truth = make_recording(case, spec, sensor, rng, oversample, interpolate)
+            rec, truth = make_recording(case, spec, sensor, rng, oversample, interpolate, circuit_oversample)
         log.info("proof case %s: truth %s", case.name, truth)
         cal = calibrate(rec, sensor, DegradeConfig(**case.base), cfg, seed=seed, interpolate=interpolate,
                         source=f"proof:{case.name}")
@@ -226,24 +335,48 @@ def run_proof(cases: Sequence[ProofCase] | None, out_dir: str | Path | None, rng
     return metrics
 
 
+def run_generators(out_dir: str | Path | None, seed: int, *, generator: str = "both", quick: bool = False,
+                   **kw) -> dict[str, dict]:
+    """:func:`run_proof` on the case lists of :func:`cases_for`, each generator from a fresh
+    ``default_rng(seed)`` (so the rdnet cases keep their results whatever else runs); the
+    rdnet reports go to ``out_dir``, the circuit ones to ``out_dir/circuit``."""
+    out = {}
+    for gen, cases in cases_for(generator, quick).items():
+        d = None if out_dir is None else (Path(out_dir) if gen == "rdnet" else Path(out_dir) / "circuit")
+        out[gen] = run_proof(cases, d, np.random.default_rng(seed), **kw)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     """``python -m rdnet.calib.proof OUT_DIR``: run the proof, write OUT_DIR/proof.json and
-    one report per case, print the table."""
+    one report per case (circuit cases under OUT_DIR/circuit), print the tables."""
     import argparse
 
     from rdnet.sim.interpolate import InterpolateConfig
     ap = argparse.ArgumentParser(prog="python -m rdnet.calib.proof", description=main.__doc__)
     ap.add_argument("out", type=Path)
     ap.add_argument("--seed", type=int, default=2024, help="seed of the scenes and true events")
-    ap.add_argument("--oversample", type=int, default=1, help="truth from frames this many times denser (1: same)")
-    ap.add_argument("--cases", nargs="*", default=None, help="case names (default: all)")
+    ap.add_argument("--oversample", type=int, default=1,
+                    help="rdnet truth from frames this many times denser (1: same)")
+    ap.add_argument("--circuit-oversample", type=int, default=4,
+                    help="circuit truth from frames this many times denser than the recorded ones")
+    ap.add_argument("--generator", choices=("rdnet", "circuit", "both"), default="both",
+                    help="model of the true events")
+    ap.add_argument("--quick", action="store_true", help=f"only the subset {', '.join(QUICK)}")
+    ap.add_argument("--cases", nargs="*", default=None, help="case names (default: all of the generator)")
     ap.add_argument("--max-upsample", type=int, default=16, help="interpolate.max_upsample of the scenes")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    cases = [c for c in CASES if args.cases is None or c.name in args.cases]
-    m = run_proof(cases, args.out, np.random.default_rng(args.seed), oversample=args.oversample,
-                  interpolate=InterpolateConfig(max_upsample=args.max_upsample))
-    print(format_table(m))
+    interp = InterpolateConfig(max_upsample=args.max_upsample)
+    for gen, cases in cases_for(args.generator, args.quick).items():
+        cases = [c for c in cases if args.cases is None or c.name in args.cases]
+        if not cases:
+            continue
+        out = args.out if gen == "rdnet" else args.out / "circuit"
+        m = run_proof(cases, out, np.random.default_rng(args.seed), oversample=args.oversample,
+                      interpolate=interp, circuit_oversample=args.circuit_oversample)
+        print(f"generator {gen}:")
+        print(format_table(m))
     return 0
 
 

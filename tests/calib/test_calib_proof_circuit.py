@@ -1,0 +1,73 @@
+"""The proof's case lists and its concealed recordings from the circuit generator."""
+import collections
+
+import numpy as np
+import pytest
+
+from rdnet.calib.effects import EFFECTS
+from rdnet.calib.proof import CASES, CIRCUIT_CASES, QUICK, ProofCase, cases_for, make_recording
+from rdnet.calib.scene import SceneSpec
+from rdnet.errors import ValidationError
+from rdnet.sim.interpolate import InterpolateConfig
+from rdnet.sim.settings import SensorConfig
+
+SPEC = SceneSpec(width=32, height=32, duration_us=300_000, fps_hz=100.0, period_s=0.3)
+
+
+def test_every_effect_on_both_generators_two_strengths_two_scenes_and_three_nulls():
+    lists = cases_for("both")
+    seven = {"refractory_period", "leak_events", "bandwidth", "hot_pixels", "onoff_asymmetry", "latency",
+             "threshold_mismatch"}
+    for gen, cases in lists.items():
+        assert all(c.generator == gen for c in cases)
+        per_effect = collections.defaultdict(set)
+        for c in cases:
+            if c.effect:
+                assert c.effect in EFFECTS
+                per_effect[c.effect].add((tuple(sorted(c.truth.items())), c.scene))
+        assert set(per_effect) == seven
+        for effect, variants in per_effect.items():
+            truths = {t for t, _ in variants}
+            scenes = {s for _, s in variants}
+            assert len(truths) >= 2 and len(scenes) >= 2 and len(variants) >= 4, (gen, effect)
+        assert sum(c.effect is None for c in cases) >= 3
+    names = [c.name for cs in lists.values() for c in cs]
+    assert len(names) == len(set(names))
+    # the original rdnet cases come first and unchanged (their committed results hold)
+    assert lists["rdnet"][:len(CASES)] == CASES
+    quick = cases_for("both", quick=True)
+    assert {c.name for cs in quick.values() for c in cs} == set(QUICK)
+    with pytest.raises(ValidationError):
+        cases_for("v2e")
+
+
+def test_circuit_case_is_concealed_and_records_its_truth():
+    case = next(c for c in CIRCUIT_CASES if c.name == "circuit_refractory_vs_lower_thresholds_s1A")
+    rec, truth = make_recording(case, SPEC, SensorConfig(), np.random.default_rng(3), 1,
+                                InterpolateConfig(method="linear", max_upsample=4))
+    assert truth["generator"] == "circuit"
+    assert truth["circuit"]["refractory_us"] == 5000.0
+    assert truth["degrade"] == {"refractory_us": 5000.0}
+    # the dead time removes events; lower thresholds put them back to the base count
+    assert truth["uncompensated_count"] < 0.9 * truth["base_count"]
+    assert abs(truth["count"] - truth["base_count"]) <= 0.01 * truth["base_count"]
+    assert truth["threshold_scale"] < 1.0
+    assert len(rec.events) == truth["count"]
+    # the recorded frames are at the scene rate; the circuit saw 4x denser ones
+    assert len(rec.frames.t_us) == 31
+
+
+def test_circuit_null_frame_rate_case_records_at_sixty_fps():
+    case = next(c for c in CIRCUIT_CASES if c.name == "circuit_null_frame_rate_60")
+    rec, truth = make_recording(case, SPEC, SensorConfig(), np.random.default_rng(4))
+    assert len(rec.frames.t_us) == 19                       # 0.3 s at 60 fps
+    assert truth["count"] == truth["base_count"] == truth["uncompensated_count"]
+    assert truth["degrade"] == {"shot_noise_hz": 1.0, "jitter_us": 300.0}
+
+
+def test_same_case_same_recording():
+    case = ProofCase("c", "latency", {"jitter_us": 500.0}, {"jitter_us": 500.0, "latency_us": 2000.0},
+                     compensate=None, generator="circuit")
+    a, _ = make_recording(case, SPEC, SensorConfig(), np.random.default_rng(5))
+    b, _ = make_recording(case, SPEC, SensorConfig(), np.random.default_rng(5))
+    assert a.events.array.tobytes() == b.events.array.tobytes()
