@@ -21,6 +21,9 @@ is what the report states for them; ``--evaluated-only`` drops them.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/calib_reliability.py
     PYTHONPATH=$PWD .venv/bin/python benchmarks/calib_reliability.py --proof /tmp/proof --results /tmp/rel
+
+The committed results were made from the full ``dvc repro calibration_proof`` run (95 cases) in
+another worktree: ``--proof ../wt-proof/results/calibration/proof --label results/calibration/proof``.
 """
 from __future__ import annotations
 
@@ -156,6 +159,8 @@ def markdown(result: dict) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--proof", type=Path, default=ROOT / "results" / "calibration" / "proof")
+    ap.add_argument("--label", default=None,
+                    help="how the proof folder is named in the results (default: its path, relative to the repo)")
     ap.add_argument("--bins", type=int, default=5)
     ap.add_argument("--evaluated-only", action="store_true", help="drop the candidates never evaluated")
     ap.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "calib_reliability",
@@ -168,7 +173,7 @@ def main() -> None:
     blocks = {b: summarise([r for r in rows if r["block"] == b], args.bins)
               for b in dict.fromkeys(r["block"] for r in rows)}
     pr = args.proof.resolve()
-    proof = str(pr.relative_to(ROOT)) if pr.is_relative_to(ROOT) else str(pr)
+    proof = args.label or (str(pr.relative_to(ROOT)) if pr.is_relative_to(ROOT) else str(pr))
     result = {"proof": proof, "bins": args.bins, "evaluated_only": args.evaluated_only,
               "overall": summarise(rows, args.bins), "blocks": blocks, "rows": rows}
     write_json(args.results.with_suffix(".json"), result)
