@@ -9,8 +9,10 @@ luminance, gamma-encoded to 8 bits). The real CLI runs as a subprocess::
 with the repository's ``params.yaml`` (the study's ``degrade`` section: every degradation
 on; its ``interpolate`` section: DIS flow, max_upsample 16). Reported: the marginal rate
 ``(1600 - 400) / (t_1600 - t_400)`` in input frames per second (start-up and imports do
-not count), per mode, the median over ``--repeat`` alternated runs; the load average
-before each run (the machine may be shared) and every run's wall time are kept.
+not count), per mode, the median over ``--repeat`` alternated runs, and the same per
+CPU-second of the CLI process (user + system, all threads: steadier when other jobs share
+the cores, blind to parallel speed-up); the load average before each run (the machine may
+be shared) and every run's wall and CPU time are kept.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_simulate_cli.py [--repeat 3] [--label after]
 
@@ -26,6 +28,7 @@ import argparse
 import json
 import os
 import platform
+import resource
 import statistics
 import subprocess
 import sys
@@ -58,15 +61,22 @@ def render_clip(path: Path, n_frames: int, seed: int = 0, tex_frames: int = max(
             w.append_frames(ims, k.astype(np.int64) * STEP_US, np.zeros(len(k), np.int64))
 
 
-def run_cli(code: Path, src: Path, out: Path, params: Path, extra: list[str]) -> tuple[float, str]:
+def _children_cpu_s() -> float:
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
+def run_cli(code: Path, src: Path, out: Path, params: Path, extra: list[str]) -> tuple[float, float, str]:
+    """(wall s, CPU s (user + system, every thread), the CLI's last line) of one run."""
     env = dict(os.environ, PYTHONPATH=str(code))
     cmd = [sys.executable, "-m", "rdnet.cli", "simulate", str(src), str(out), "--params", str(params), *extra]
+    c0 = _children_cpu_s()
     t0 = time.perf_counter()
     res = subprocess.run(cmd, cwd=code, env=env, capture_output=True, text=True)
     dt = time.perf_counter() - t0
     if res.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed:\n{res.stderr[-2000:]}")
-    return dt, res.stdout.strip().splitlines()[-1]
+    return dt, _children_cpu_s() - c0, res.stdout.strip().splitlines()[-1]
 
 
 def main(argv=None) -> int:
@@ -97,26 +107,37 @@ def main(argv=None) -> int:
             for m in args.modes:   # warm-up (numba cache load/compile, disk cache), not timed
                 run_cli(code, srcs[SIZES[0]], tmp / "out.h5", params, MODES[m] + extra)
         runs = {lb: {m: {n: [] for n in SIZES} for m in args.modes} for lb in codes}
+        cpus = {lb: {m: {n: [] for n in SIZES} for m in args.modes} for lb in codes}
         loads = {lb: [] for lb in codes}
         for r in range(args.repeat):
             for m in args.modes:
                 for n in SIZES:
                     for lb, (code, extra) in codes.items():
                         loads[lb].append(os.getloadavg()[0])
-                        dt, line = run_cli(code, srcs[n], tmp / "out.h5", params, MODES[m] + extra)
+                        dt, cpu, line = run_cli(code, srcs[n], tmp / "out.h5", params, MODES[m] + extra)
                         runs[lb][m][n].append(round(dt, 3))
-                        print(f"[{lb}] {m} {n} frames: {dt:.2f} s (load {loads[lb][-1]:.2f}) {line}", flush=True)
+                        cpus[lb][m][n].append(round(cpu, 3))
+                        print(f"[{lb}] {m} {n} frames: {dt:.2f} s, CPU {cpu:.2f} s (load {loads[lb][-1]:.2f}) {line}",
+                              flush=True)
         for lb, (code, extra) in codes.items():
             entry = entries[lb] = {"command": command, "code": str(code), "extra_args": extra, "modes": {}}
             for m in args.modes:
                 rs = runs[lb][m]
                 rates = [(SIZES[1] - SIZES[0]) / (b - a) if b > a else float("nan")
                          for a, b in zip(rs[SIZES[0]], rs[SIZES[1]])]
+                cs = cpus[lb][m]
+                cpu_rates = [(SIZES[1] - SIZES[0]) / (b - a) if b > a else float("nan")
+                             for a, b in zip(cs[SIZES[0]], cs[SIZES[1]])]
                 entry["modes"][m] = {
                     "cli_args": MODES[m] + extra,
                     "marginal_frames_per_s_median": round(statistics.median(rates), 1),
                     "marginal_frames_per_s_runs": [round(x, 1) for x in rates],
                     "wall_s": {str(n): rs[n] for n in SIZES},
+                    # frames per CPU-second (user + system, all threads): less sensitive to
+                    # other jobs on the machine than wall time, but blind to parallel speed-up
+                    "marginal_frames_per_cpu_s_median": round(statistics.median(cpu_rates), 1),
+                    "marginal_frames_per_cpu_s_runs": [round(x, 1) for x in cpu_rates],
+                    "cpu_s": {str(n): cs[n] for n in SIZES},
                     "end_to_end_frames_per_s_1600_median": round(SIZES[1] / statistics.median(rs[SIZES[1]]), 1)}
             entry["load_average_1min"] = {"min": round(min(loads[lb]), 2),
                                           "median": round(statistics.median(loads[lb]), 2),
@@ -135,7 +156,8 @@ def main(argv=None) -> int:
     for lb, entry in entries.items():
         for m, e in entry["modes"].items():
             print(f"{lb} {m}: {e['marginal_frames_per_s_median']} frames/s marginal "
-                  f"(runs {e['marginal_frames_per_s_runs']}), load {entry['load_average_1min']}")
+                  f"(runs {e['marginal_frames_per_s_runs']}), {e['marginal_frames_per_cpu_s_median']} "
+                  f"frames per CPU-s (runs {e['marginal_frames_per_cpu_s_runs']}), load {entry['load_average_1min']}")
     return 0
 
 

@@ -296,7 +296,33 @@ def test_stats_without_inserted_frames_are_the_pair_steps(texture, color):
     st = UpsampleStats()
     ims, ts = upsample_all(frames, t, cfg, stats=st, warn=False)
     np.testing.assert_array_equal(ims, frames)
-    crits = [criterion(step_sizes(frames[i:i + 2], 0.01, color=color), 0.99) for i in range(5)]
-    assert st.pairs == 5 and st.inserted == 0
+    steps = [step_sizes(frames[i:i + 2], 0.01, color=color) for i in range(5)]
+    crits = [criterion(s, 0.99) for s in steps]
+    assert st.pairs == 5 and st.inserted == 0 and st.per_pair == [0] * 5
     assert st.max_log_step == pytest.approx(max(crits), rel=1e-6)
     assert st.violations == sum(c > cfg.max_log_step for c in crits)
+    # the batched path gives exactly numpy's quantile and the exact per-step counts
+    assert st.max_log_step == max(float(np.quantile(s[0], 0.99)) for s in steps)
+    assert st.strict_max_log_step == max(float(s.max()) for s in steps)
+    assert st.pixel_steps_over == sum(int(np.count_nonzero(s > cfg.max_log_step)) for s in steps)
+    assert len(list(upsample(frames, t, cfg, warn=False))) == 1   # nothing inserted: one chunk
+
+
+def test_quantile_exact_is_numpys_quantile_bit_for_bit():
+    from rdnet.sim.interpolate import quantile_exact
+    rng = np.random.default_rng(3)
+    cases = [rng.random(50_000, dtype=np.float32),
+             (np.abs(rng.standard_normal(89_960)) * 0.05).astype(np.float32),
+             np.round(rng.random(20_000) * 8).astype(np.float32) / 8,       # many ties
+             np.sort(rng.exponential(size=30_001)).astype(np.float32)[::-1].copy(),  # sorted, descending
+             np.full(5_000, 0.25, np.float32),
+             rng.random(100, dtype=np.float32)]                           # small: np.quantile itself
+    withnan = rng.random(40_000, dtype=np.float32)
+    withnan[7] = np.nan
+    cases.append(withnan)
+    for v in cases:
+        before = v.copy()
+        for q in (0.5, 0.9, 0.99, 0.999, 0.987654, 1.0):
+            want, got = np.quantile(v, q), quantile_exact(v, q)
+            assert np.asarray(got).tobytes() == np.asarray(want).tobytes(), (v.size, q, got, want)
+        np.testing.assert_array_equal(v, before)   # input untouched
