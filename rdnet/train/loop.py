@@ -211,8 +211,9 @@ def fit_decision(net: nn.Module, train_path: str | Path, val_rows, device: torch
     counts output -- the occupancy threshold fitted on the validation rows so that the
     restored event count matches the undegraded one (:func:`rdnet.nn.decision.fit_threshold`);
     signed output -- the paper's rounding. Both with the validation event metrics
-    (:func:`rdnet.nn.decision.match_counts`) of the decided events."""
-    from rdnet.nn.decision import decide_counts, decision_dict, fit_threshold, match_counts, split_signed
+    (:func:`rdnet.eval.events.match_metrics`) of the decided events."""
+    from rdnet.eval.events import match_metrics
+    from rdnet.nn.decision import decide_counts, decision_dict, fit_threshold, polarity_grid, split_signed
     if len(val_rows) == 0:
         if net.output == "counts":
             raise ConfigError("train.val_sequences", "the counts decision needs validation rows")
@@ -227,11 +228,13 @@ def fit_decision(net: nn.Module, train_path: str | Path, val_rows, device: torch
     if net.output == "counts":
         threshold = fit_threshold(out, prob, int(target.sum()))
         restored = decide_counts(out, prob, threshold)
-        metrics = match_counts(restored, target)
+        metrics = match_metrics(polarity_grid(restored), polarity_grid(np.rint(target).astype(np.int64)))
     else:
         threshold = None
-        metrics = match_counts(split_signed(np.rint(out)), split_signed(target))
+        metrics = match_metrics(polarity_grid(split_signed(np.rint(out)).astype(np.int64)),
+                                polarity_grid(split_signed(np.rint(target)).astype(np.int64)))
     log.info("decision: threshold %s, validation %s", threshold, {k: round(v, 4) for k, v in metrics.items()})
+    metrics = {k: (v if np.isfinite(v) else None) for k, v in metrics.items()}   # JSON-able card
     return decision_dict(threshold, **info, val_metrics=metrics)
 
 

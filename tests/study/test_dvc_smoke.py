@@ -23,7 +23,7 @@ pytestmark = pytest.mark.skipif(not DVC.exists(), reason="dvc not installed besi
 def _tiny_params(p: dict) -> dict:
     p["scenes"].update(n_train=2, n_test=1, height=24, width=24, n_frames=30, n_objects=1)
     p["interpolate"].update(max_upsample=2)
-    p["train"].update(iterations=3, batch_size=2, crop=16, log_every=1, ckpt_every=2)
+    p["train"].update(iterations=3, batch_size=2, crop=16, log_every=1, ckpt_every=2, val_sequences=1)
     p["ablation"]["level_bins"] = 2
     p["study"].update(seeds=[0, 1], parallel=2,      # two seeds, trained in two processes
                       stress_scales=[0.5, 2.0], stress_rows=["degraded_train", "restored"])

@@ -1,0 +1,60 @@
+"""The restoration stage's table: event-level metrics of the raw degraded events and of
+stage-1 networks with the count output (image-guided, events-only), the paper's signed
+output and an RDNet on a counts stage 1 (its fine-tuned stage 1)."""
+import h5py
+import numpy as np
+import pytest
+
+from rdnet.eval.events import match_metrics
+from rdnet.study.rows import AblationConfig, restoration_table
+from rdnet.train.config import ModelConfig, TrainConfig
+from rdnet.train.loop import train
+from rdnet.train.synthetic import write_synthetic_pairs
+
+TINY = ModelConfig(size="tiny", width=4)
+CFG = dict(iterations=3, batch_size=4, crop=16, device="cpu", log_every=3, ckpt_every=100,
+           dvclive=False, seed=1, lr=1e-3, val_sequences=1)
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("r")
+    pairs = write_synthetic_pairs(tmp / "p.h5", n=6, bins=3, height=24, width=24, seed=4)
+    counts = TrainConfig(**CFG, restore_output="counts")
+    image = train("restore", counts, TINY, pairs, tmp / "image", progress=False)
+    nets = {"image": image,
+            "events": train("restore_events", counts, TINY, pairs, tmp / "events", progress=False),
+            "signed": train("restore", TrainConfig(**CFG), TINY, pairs, tmp / "signed", progress=False),
+            "rdnet": train("rdnet", counts, TINY, pairs, tmp / "rdnet", init_checkpoint=image, progress=False)}
+    return pairs, nets
+
+
+def test_raw_events_score_their_own_counts_and_networks_get_event_metrics(trained):
+    pairs, nets = trained
+    res = restoration_table(AblationConfig(batch_size=4, device="cpu"), pairs, None, nets, filters=())
+    assert set(res) == {"degraded", *nets}
+    with h5py.File(pairs, "r") as f:
+        cu = np.stack([f["voxel_undegraded_on"][:], f["voxel_undegraded_off"][:]], 1).round().astype(np.int64)
+        cd = np.stack([f["voxel_degraded_on"][:], f["voxel_degraded_off"][:]], 1).round().astype(np.int64)
+    want = match_metrics(cd, cu)
+    got = res["degraded"]["events"]
+    assert got["precision"] == pytest.approx(want["precision"]) and got["count_ratio"] == pytest.approx(
+        cd.sum() / cu.sum())
+    assert got["reference"] == int(cu.sum()) and 0 < got["f1"] < 1
+    for name in nets:
+        ev = res[name]["events"]
+        assert 0 <= ev["precision"] <= 1 and 0 <= ev["recall"] <= 1 and ev["reference"] == int(cu.sum())
+        assert ev["restored"] >= 0 and "voxel_l1" in res[name] and res[name]["seeds"] == [0]
+        assert {g["group"] for g in ev["by_degradation"]} == {g["group"] for g in res[name]["by_degradation"]}
+
+
+def test_rdnet_row_and_restored_filter_run_on_a_counts_stage1(trained):
+    from rdnet.eval.predict import evaluate_row, predict
+    from rdnet.study.rows import voxel_filter
+    pairs, nets = trained
+    row = evaluate_row("rdnet", nets["rdnet"], pairs, device="cpu", level_bins=2)
+    assert row["n"] == 6 and np.isfinite(row["psnr"]) and "voxel_l1" in row["restoration"]
+    p = predict("rdnet", nets["rdnet"], pairs, device="cpu", events_out=True)
+    assert p["restored"].shape == (6, 3, 24, 24) and p["restored_counts"].shape == (6, 2, 3, 24, 24)
+    t = voxel_filter("rdnet", pairs, None, None, nets["rdnet"], 4, "cpu")
+    np.testing.assert_array_equal(t(None, np.array([2, 0])), p["restored"][[2, 0]])
