@@ -90,18 +90,6 @@ def stage1_decision(checkpoint: str | Path) -> dict:
     return read_decision(ck.get("extra", {}).get("decision"), output)
 
 
-def _decided_counts(stage1, img, x, restored: np.ndarray, decision) -> np.ndarray:
-    """(n, 2, bins, H, W) int64 restored events of one batch (module docstring)."""
-    from rdnet.nn.decision import decide_counts, polarity_grid, split_signed
-    if stage1.output == "counts":
-        mu, logit = stage1(img, x, return_heads=True)
-        c = decide_counts(mu.float().cpu().numpy(), torch.sigmoid(logit).float().cpu().numpy(),
-                          float(decision["threshold"]))
-    else:
-        c = split_signed(np.rint(restored)).astype(np.int64)
-    return polarity_grid(c)
-
-
 def iter_predictions(kind: str, model, pairs_path: str | Path, events: str = "degraded", *,
                      voxel_transform: VoxelTransform | None = None, batch_size: int = 4,
                      device: str | torch.device = "cpu", indices: Sequence[int] | None = None,
@@ -115,6 +103,7 @@ def iter_predictions(kind: str, model, pairs_path: str | Path, events: str = "de
     import h5py
     from tqdm.auto import tqdm
 
+    from rdnet.nn.decision import decided_events
     if kind not in METHODS:
         raise ConfigError("method", f"unknown method {kind!r}; known: {', '.join(METHODS)}")
     if events not in EVENT_KINDS:
@@ -181,7 +170,7 @@ def iter_predictions(kind: str, model, pairs_path: str | Path, events: str = "de
                 else:
                     b["pred"] = model(img, v).float().cpu().numpy()
                 if decision is not None:
-                    b["restored_counts"] = _decided_counts(stage1, img, v, b["restored"], decision)
+                    b["restored_counts"] = decided_events(stage1, img, v, decision)
             bar.update(idx.size)
             yield b
     bar.close()

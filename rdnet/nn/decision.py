@@ -90,3 +90,20 @@ def polarity_grid(counts: np.ndarray) -> np.ndarray:
     if c.ndim < 3 or c.shape[-3] % 2:
         raise ValidationError("counts", f"expected (..., 2 * bins, H, W) per-polarity counts, got {c.shape}")
     return c.reshape(c.shape[:-3] + (2, c.shape[-3] // 2) + c.shape[-2:])
+
+
+def decided_events(stage1, image, x, decision: Mapping | None) -> np.ndarray:
+    """(n, 2, bins, H, W) int64 ON/OFF event counts decided from a stage-1 network's
+    output on the torch inputs ``image`` (None for events-only) and ``x`` (the signed
+    voxel, or ON-then-OFF counts for the count output): the count output applies the
+    fitted occupancy threshold of ``decision`` (:func:`decide_counts`), the signed output
+    rounds (``round(v)`` events of sign ``v``)."""
+    import torch
+    with torch.inference_mode():
+        if stage1.output == "counts":
+            mu, logit = stage1(image, x, return_heads=True)
+            c = decide_counts(mu.float().cpu().numpy(), torch.sigmoid(logit).float().cpu().numpy(),
+                              float(read_decision(decision, "counts")["threshold"]))
+        else:
+            c = split_signed(np.rint(stage1(image, x).float().cpu().numpy())).astype(np.int64)
+    return polarity_grid(c)
