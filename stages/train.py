@@ -16,6 +16,9 @@ def main(args, params):
     if args.restore_output:                               # e.g. the paper's signed stage 1 beside the counts one
         import dataclasses
         train_cfg = dataclasses.replace(train_cfg, restore_output=args.restore_output)
+    if args.stage2_input:                                 # e.g. RDNet whose stage 2 also reads the raw events
+        import dataclasses
+        train_cfg = dataclasses.replace(train_cfg, stage2_input=args.stage2_input)
     init_from_env(train_cfg.device)                       # under torchrun (study.launcher): join the group
     net = network(params, args.network) if args.network else NetworkConfig(task=args.task, events=args.events)
     study = section(params, "study")
@@ -39,6 +42,8 @@ def _parser():
     p.add_argument("--events", choices=["degraded", "undegraded"], default="degraded", help="with --task")
     p.add_argument("--restore-output", choices=["signed_masked", "counts"], default=None,
                    help="overrides train.restore_output (stage-1 output of restore/rdnet tasks)")
+    p.add_argument("--stage2-input", choices=["restored", "dual"], default=None,
+                   help="overrides train.stage2_input (task rdnet: what stage 2 reads)")
     p.add_argument("--train", type=Path, default=Path("data/pairs/train.h5"))
     p.add_argument("--init", type=Path, default=None,
                    help="starting weights: a network directory (seed by seed) or a .pt file")

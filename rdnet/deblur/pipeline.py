@@ -165,7 +165,7 @@ def run_rdnet(net, images: np.ndarray, voxels: np.ndarray, device: torch.device,
         img = torch.from_numpy(np.ascontiguousarray(images, np.float32)).to(device)
         vox = torch.from_numpy(np.ascontiguousarray(voxels, np.float32)).to(device)
         restored = net.restore.signed(net.restore(img, vox))
-        sharp = None if restore_only else net.deblur(img, restored).float().cpu().numpy()
+        sharp = None if restore_only else net.stage2(img, restored, vox).float().cpu().numpy()
         return restored.float().cpu().numpy(), sharp
 
 

@@ -288,7 +288,7 @@ def evaluate_ablation_row(cfg: AblationConfig, row_id: str, pairs_path: Path,
 
 #: stage-1 networks scored by the restoration stage: name -> network directory (kind read
 #: from the checkpoint: a RestoreNet, or an RDNet whose fine-tuned stage 1 is scored).
-LEARNED_RESTORERS = {"rdnet": "models/rdnet", "rdnet_signed": "models/rdnet_signed",
+LEARNED_RESTORERS = {"rdnet": "models/rdnet", "rdnet_signed": "models/rdnet_signed", "rdnet_dual": "models/rdnet_dual",
                      "restore_image": "models/restore_image", "restore_events": "models/restore_events",
                      "restore_signed": "models/restore_signed"}
 #: event-level metrics reported per method (rdnet.eval.events.match_metrics).

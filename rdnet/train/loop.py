@@ -80,10 +80,11 @@ def resolve_device(name: str, info: DistInfo | None = None) -> torch.device:
 
 
 def model_args(task: str, model_cfg: ModelConfig, image_channels: int, bins: int,
-               restore_output: str = "signed") -> dict:
+               restore_output: str = "signed", stage2_input: str = "restored") -> dict:
     """Keyword arguments of ``build_model`` for ``task`` (stored in the checkpoint).
     ``restore_output`` (RestoreNet output, signed or counts) applies to the stage-1
-    tasks and rdnet; it is stored only when not signed (old checkpoints stay equal)."""
+    tasks and rdnet, ``stage2_input`` (restored or dual) to rdnet; each is stored only
+    when not the default (old checkpoints stay equal)."""
     if task not in TASKS:
         raise ConfigError("task", f"unknown task {task!r}; known: {', '.join(TASKS)}")
     args = {"kind": TASKS[task], "size": model_cfg.size,
@@ -91,6 +92,8 @@ def model_args(task: str, model_cfg: ModelConfig, image_channels: int, bins: int
             "bins": int(bins), **model_cfg.overrides()}
     if restore_output != "signed" and task in RESTORE_TASKS + ("rdnet",):
         args["restore_output"] = restore_output
+    if stage2_input != "restored" and task == "rdnet":
+        args["stage2_input"] = stage2_input
     return args
 
 
@@ -128,10 +131,13 @@ def compute_loss(task: str, model: nn.Module, batch: Mapping[str, torch.Tensor],
     elif task == "image_only":
         pred = model(blurry, None)
     elif task == "rdnet":
-        restored, pred = model(blurry, batch["counts_degraded" if counts else "voxel_degraded"])
+        inp = batch["counts_degraded" if counts else "voxel_degraded"]
+        restored, pred = model(blurry, inp)
         ld = deblur_loss(pred, batch["sharp"])
+        # F of Eq. 9 is stage 2's event encoder on what stage 2 reads (with the raw voxel when dual)
+        features = lambda v: net.deblur.event_features(net.stage2_events(v, inp))  # noqa: E731
         lr = restoration_loss(restored, batch["voxel_undegraded"], batch["voxel_degraded"],
-                              alpha=cfg.stage2_alpha, feature_fn=net.deblur.event_features,
+                              alpha=cfg.stage2_alpha, feature_fn=features,
                               beta=cfg.beta, empty_weight=cfg.empty_weight)
         loss = ld + lr
         return loss, {"loss": loss.detach(), "loss_deblur": ld.detach(), "loss_restore": lr.detach(),
@@ -254,7 +260,7 @@ def _init_from(task: str, net: nn.Module, path: Path, args: Mapping) -> None:
     ckpt_mod.check_compatible(path, ck, bins=args["bins"], image_channels=args["image_channels"])
     if task == "rdnet" and ck["model_kind"] == "restore":
         stored = {k: v for k, v in ck["model_args"].items() if k != "kind"}
-        wanted = {k: v for k, v in ckpt_mod._plain(args).items() if k != "kind"}
+        wanted = {k: v for k, v in ckpt_mod._plain(args).items() if k not in ("kind", "stage2_input")}
         if stored != wanted:
             raise FormatError(path, "model_args", f"stage-1 network {stored} differs from this "
                               f"run's stage 1 {wanted}")
@@ -274,11 +280,23 @@ def _init_deblur(task: str, net: nn.Module, path: Path, args: Mapping) -> None:
     if ck["model_kind"] != "deblur":
         raise FormatError(path, "model_kind", f"holds a {ck['model_kind']!r} model; stage 2 starts from a 'deblur' one")
     ckpt_mod.check_compatible(path, ck, bins=args["bins"], image_channels=args["image_channels"])
-    stored = {k: v for k, v in ck["model_args"].items() if k != "kind"}
-    wanted = {k: v for k, v in ckpt_mod._plain(args).items() if k != "kind"}
+    stage1_only = ("kind", "restore_output", "stage2_input")       # not DeblurNet arguments
+    stored = {k: v for k, v in ck["model_args"].items() if k not in stage1_only}
+    wanted = {k: v for k, v in ckpt_mod._plain(args).items() if k not in stage1_only}
     if stored != wanted:
         raise FormatError(path, "model_args", f"DeblurNet {stored} differs from this run's stage 2 {wanted}")
-    ckpt_mod.load_state(path, net.deblur, ck["state_dict"])
+    state = dict(ck["state_dict"])
+    if args.get("stage2_input") == "dual":
+        # the event input layers read 2 x bins channels: the restored half starts from the
+        # DeblurNet's weights, the raw half from zero (the start is the restored-only RDNet)
+        own = net.deblur.state_dict()
+        for k, w in state.items():
+            if k in own and own[k].ndim == w.ndim and own[k].shape != w.shape \
+                    and own[k].shape[1] == 2 * w.shape[1] and own[k].shape[0] == w.shape[0]:
+                grown = torch.zeros_like(own[k])
+                grown[:, :w.shape[1]] = w
+                state[k] = grown
+    ckpt_mod.load_state(path, net.deblur, state)
     log.info("initialised stage 2 of rdnet from %s (step %s)", path, ck.get("step"))
 
 
@@ -355,7 +373,7 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
     if counts and not data.info.has_counts:
         raise FormatError(Path(train_path), "voxel_degraded_on", "train.restore_output counts needs the "
                           "per-polarity voxels (pairs file written before they existed: rerun the blur step)")
-    args = model_args(task, model_cfg, data.info.channels, data.info.bins, cfg.model_output)
+    args = model_args(task, model_cfg, data.info.channels, data.info.bins, cfg.model_output, cfg.stage2_input)
     config = to_dict(cfg)
     extra = {"events": events, "train_path": str(Path(train_path)),
              "init_checkpoint": None if init_checkpoint is None else str(init_checkpoint),

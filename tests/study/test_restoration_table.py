@@ -58,3 +58,15 @@ def test_rdnet_row_and_restored_filter_run_on_a_counts_stage1(trained):
     assert p["restored"].shape == (6, 3, 24, 24) and p["restored_counts"].shape == (6, 2, 3, 24, 24)
     t = voxel_filter("rdnet", pairs, None, None, nets["rdnet"], 4, "cpu")
     np.testing.assert_array_equal(t(None, np.array([2, 0])), p["restored"][[2, 0]])
+
+
+def test_report_shows_the_event_metrics_beside_the_response_l1():
+    from rdnet.study.report import restoration_frame
+    rest = {"degraded": {"voxel_l1": 1.0, "voxel_psnr": 10.0,
+                         "events": {"precision": 0.5, "recall": 0.75, "f1": 0.6, "count_ratio": 1.5,
+                                    "voxel_l1_all": 0.01, "voxel_l1_event": 0.9}},
+            "rdnet": {"voxel_l1": 0.5, "voxel_psnr": 12.0, "seeds": [0, 1], "voxel_l1_std": 0.1,
+                      "events": {"precision": 0.8, "recall": 0.7, "f1": 0.75, "f1_std": 0.02, "count_ratio": None}}}
+    df = restoration_frame(rest)
+    assert df.loc[0, "F1"] == "0.600" and df.loc[0, "count ratio"] == "1.50"
+    assert df.loc[1, "F1"] == "0.750 ± 0.020" and df.loc[1, "count ratio"] == "-"

@@ -82,3 +82,33 @@ def test_counts_needs_per_polarity_voxels_and_validation(tmp_path):
         TrainConfig(restore_output="counts", val_sequences=0)
     with pytest.raises(ConfigError, match="restore_output"):
         TrainConfig(restore_output="signed")
+
+
+def test_dual_stage2_starts_as_the_restored_only_rdnet_and_trains(noisy, tmp_path):
+    """stage2_input dual: DeblurNet reads restored + raw voxels; initialised from a
+    DeblurNet, the raw half of its input layers is zero, so it starts as the
+    restored-only RDNet with the same weights; it trains, and evaluates like any RDNet."""
+    import torch
+    from rdnet.eval.predict import predict
+    from rdnet.nn.models import build_model
+    from rdnet.train.loop import _init_deblur, model_args
+    deblur = train("deblur", TrainConfig(**CFG), TINY, noisy, tmp_path / "d", progress=False)
+    image = train("restore", COUNTS, TINY, noisy, tmp_path / "r", progress=False)
+    dual_cfg = TrainConfig(**CFG, restore_output="counts", val_sequences=2, stage2_input="dual")
+    args = model_args("rdnet", TINY, 1, 3, "counts", "dual")
+    assert args["stage2_input"] == "dual"
+    dual = build_model(**args)
+    plain = build_model(**model_args("rdnet", TINY, 1, 3, "counts"))
+    _init_deblur("rdnet", dual, deblur, args)
+    _init_deblur("rdnet", plain, deblur, model_args("rdnet", TINY, 1, 3, "counts"))
+    dual.restore.load_state_dict(plain.restore.state_dict())
+    g = torch.Generator().manual_seed(0)
+    img, x = torch.rand(2, 1, 24, 24, generator=g), torch.randint(0, 3, (2, 6, 24, 24), generator=g).float()
+    with torch.no_grad():
+        torch.testing.assert_close(dual(img, x)[1], plain(img, x)[1])
+    path = train("rdnet", dual_cfg, TINY, noisy, tmp_path / "dual", init_checkpoint=image, init_deblur=deblur,
+                 progress=False)
+    ck = read_checkpoint(path)
+    assert ck["model_args"]["stage2_input"] == "dual" and ck["extra"]["decision"]["rule"] == "occupancy_threshold"
+    p = predict("rdnet", path, noisy, device="cpu")
+    assert p["pred"].shape == (10, 1, 24, 24) and np.isfinite(p["pred"]).all()
