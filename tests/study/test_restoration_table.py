@@ -70,3 +70,16 @@ def test_report_shows_the_event_metrics_beside_the_response_l1():
     df = restoration_frame(rest)
     assert df.loc[0, "F1"] == "0.600" and df.loc[0, "count ratio"] == "1.50"
     assert df.loc[1, "F1"] == "0.750 ± 0.020" and df.loc[1, "count ratio"] == "-"
+
+
+def test_training_flops_count_every_stage1_and_stage2_input():
+    """The FLOPs record of a training (train.json) runs each network once on zeros: a
+    count-output stage 1 reads 2 x bins channels, an events-only one no image, and the
+    dual stage 2 costs more than the restored-only one."""
+    from rdnet.nn.models import build_model
+    from rdnet.study.training import forward_flops
+    events_only = forward_flops(build_model("restore", "tiny", 0, 3, "counts", width=4), 16, 0, 3)
+    image = forward_flops(build_model("restore", "tiny", 1, 3, "counts", width=4), 16, 1, 3)
+    plain = forward_flops(build_model("rdnet", "tiny", 1, 3, "counts", width=4), 16, 1, 3)
+    dual = forward_flops(build_model("rdnet", "tiny", 1, 3, "counts", "dual", width=4), 16, 1, 3)
+    assert 0 < events_only < image < plain < dual
