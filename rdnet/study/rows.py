@@ -346,43 +346,44 @@ def restoration_table(cfg: AblationConfig, pairs_path: Path, events_dir: Path,
             cd = np.stack([np.asarray(f["voxel_degraded_on"]), np.asarray(f["voxel_degraded_off"])], 1)
             cu, cd = np.rint(cu).astype(np.int64), np.rint(cd).astype(np.int64)
     idx = np.arange(len(u))
-    # name -> list (one per seed) of (signed voxels, event counts or None)
-    results: dict[str, list] = {"degraded": [(d, cd if has_counts else None)]}
+    labels = M.dominant_degradation(degrade) if degrade else None
+
+    def score(signed, counts) -> dict:
+        """One run's entry (scored at once: the restored arrays are not kept)."""
+        per = M.restoration_per_sample(signed, u, d)
+        entry = {k: float(np.mean(v)) for k, v in per.items() if k != "mask_fraction"}
+        if labels is not None:
+            entry["by_degradation"] = M.group_means({k: per[k] for k in ("voxel_l1", "voxel_psnr")}, labels)
+        if counts is not None:
+            entry["events"] = _event_entry(counts, cu, labels)
+        return entry
+
+    # name -> entries, one per seed for the learned ones
+    entries: dict[str, list] = {"degraded": [score(d, cd if has_counts else None)]}
     for name in filters:
         if name == "gef_voxel":
             from rdnet.nn.decision import polarity_grid, split_signed
             v = voxel_filter("gef", pairs_path, events_dir, cfg.filters)(d, idx)
-            results[name] = [(v, polarity_grid(split_signed(np.rint(v)).astype(np.int64)))]
+            entries[name] = [score(v, polarity_grid(split_signed(np.rint(v)).astype(np.int64)))]
         else:
-            tr = event_filter(name, pairs_path, events_dir, cfg.filters, baf_dt_us, gef_bins)
-            c = tr.counts(idx)
-            results[name] = [((c[:, 0] - c[:, 1]).astype(np.float32), c)]
+            c = event_filter(name, pairs_path, events_dir, cfg.filters, baf_dt_us, gef_bins).counts(idx)
+            entries[name] = [score((c[:, 0] - c[:, 1]).astype(np.float32), c)]
     for name, ck in (learned or {}).items():
-        runs = []
+        entries[name] = []
         for s in seeds:
             path = seed_checkpoint(ck, s)
             kind = "rdnet" if read_checkpoint(path)["model_kind"] == "rdnet" else "restore"
             pr = predict(kind, path, pairs_path, "degraded", batch_size=cfg.batch_size, device=cfg.device,
                          events_out=has_counts)
-            runs.append((pr["restored"], pr.get("restored_counts")))
-        results[name] = runs
-    labels = M.dominant_degradation(degrade) if degrade else None
+            entries[name].append(score(pr["restored"], pr.get("restored_counts")))
+            del pr
     out = {}
-    for name, runs in results.items():
-        entries = []
-        for signed, counts in runs:
-            per = M.restoration_per_sample(signed, u, d)
-            entry = {k: float(np.mean(v)) for k, v in per.items() if k != "mask_fraction"}
-            if labels is not None:
-                entry["by_degradation"] = M.group_means({k: per[k] for k in ("voxel_l1", "voxel_psnr")}, labels)
-            if counts is not None:
-                entry["events"] = _event_entry(counts, cu, labels)
-            entries.append(entry)
-        out[name] = mean_over_seeds(entries)
+    for name, runs in entries.items():
+        out[name] = mean_over_seeds(runs)
         if name in (learned or {}):
             out[name]["seeds"] = list(seeds)
             for key in ("voxel_l1", "voxel_psnr"):
-                out[name][f"{key}_std"] = seed_spread([e[key] for e in entries])
-            if "events" in entries[0]:
-                out[name]["events"]["f1_std"] = seed_spread([e["events"]["f1"] for e in entries])
+                out[name][f"{key}_std"] = seed_spread([e[key] for e in runs])
+            if "events" in runs[0]:
+                out[name]["events"]["f1_std"] = seed_spread([e["events"]["f1"] for e in runs])
     return out
