@@ -21,8 +21,8 @@ Tasks (:data:`TASKS`) and their objectives (RDNet paper, Sec. 3.4):
   ``L_d + beta * |F(E_r) - F(E_u)|_1`` (Eq. 9; F the deblurring network's event
   encoder) plus ``stage2_alpha`` times the masked voxel term (0 by default). With a
   counts stage 1, stage 1 reads per-polarity counts and stage 2 the signed expected
-  counts (:class:`~rdnet.nn.models.RDNet`); model.pt carries the stage-1 checkpoint's
-  decision.
+  counts (:class:`~rdnet.nn.models.RDNet`); model.pt carries the decision refitted on the
+  stage-1 checkpoint's validation rows when stage 1 was fine-tuned (else its decision).
 
 Optimiser: Adam, cosine annealing from ``lr`` to ``lr_min`` over ``iterations`` steps
 (``CosineAnnealingLR(T_max=iterations, eta_min=lr_min)``, paper Sec. 4.1).
@@ -497,7 +497,14 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
         extra["decision"] = fit_decision(net, train_path, val_rows, device,
                                          image=task != "restore_events") if main else None
     elif task == "rdnet" and init_checkpoint is not None:
-        extra["decision"] = ckpt_mod.read_checkpoint(init_checkpoint).get("extra", {}).get("decision")
+        init_extra = ckpt_mod.read_checkpoint(init_checkpoint).get("extra", {})
+        extra["decision"] = init_extra.get("decision")
+        val = init_extra.get("val_rows") or []
+        if counts and cfg.finetune_restore and len(val) and main:
+            # stage 2 fine-tuned stage 1: its occupancy moved, so the threshold is refitted on
+            # stage 1's held-out rows (stage 2 trained on them: a count match, not a test score)
+            extra["decision"] = {**fit_decision(net.restore, train_path, np.asarray(val, np.int64), device),
+                                 "refit": "after stage 2 fine-tuning, on the stage-1 validation rows"}
     save(final_path, step, full=False)
     if main and last_path.exists():
         last_path.unlink()

@@ -65,8 +65,14 @@ def test_signed_masked_option_events_only_and_rdnet_on_counts(noisy, tmp_path):
     assert ck["model_args"]["image_channels"] == 0 and ck["extra"]["decision"]["threshold"] > 0
     r = train("restore", COUNTS, TINY, noisy, tmp_path / "c", progress=False)
     rd = train("rdnet", COUNTS, TINY, noisy, tmp_path / "rd", init_checkpoint=r, progress=False)
-    ck = read_checkpoint(rd)
-    assert ck["extra"]["decision"] == read_checkpoint(r)["extra"]["decision"]
+    ck = read_checkpoint(rd)                   # stage 1 fine-tuned: its threshold refitted on its val rows
+    d, d1 = ck["extra"]["decision"], read_checkpoint(r)["extra"]["decision"]
+    assert d["rule"] == d1["rule"] and d["val_rows"] == d1["val_rows"] and "refit" in d
+    assert d["val_metrics"]["count_ratio"] == pytest.approx(1.0, abs=0.05)
+    import dataclasses
+    frozen = train("rdnet", dataclasses.replace(COUNTS, finetune_restore=False), TINY, noisy, tmp_path / "rf",
+                   init_checkpoint=r, progress=False)
+    assert read_checkpoint(frozen)["extra"]["decision"] == d1            # stage 1 unchanged: kept
     with pytest.raises(FormatError, match="restore_output"):   # a signed stage 1 for a counts RDNet
         train("rdnet", COUNTS, TINY, noisy, tmp_path / "rd2", init_checkpoint=signed, progress=False)
 
@@ -110,5 +116,6 @@ def test_dual_stage2_starts_as_the_restored_only_rdnet_and_trains(noisy, tmp_pat
                  progress=False)
     ck = read_checkpoint(path)
     assert ck["model_args"]["stage2_input"] == "dual" and ck["extra"]["decision"]["rule"] == "occupancy_threshold"
+    assert "stage 2" in ck["extra"]["decision"]["refit"]          # refitted after fine-tuning stage 1
     p = predict("rdnet", path, noisy, device="cpu")
     assert p["pred"].shape == (10, 1, 24, 24) and np.isfinite(p["pred"]).all()
