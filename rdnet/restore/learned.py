@@ -169,7 +169,10 @@ def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapp
 
 def load_restorer(checkpoint: str | Path | None, *, has_frames: bool, params: Mapping,
                   device: str = "cpu") -> LearnedRestorer:
-    """The learned restorer to use (module docstring for the search order)."""
+    """The learned restorer to use (module docstring for the search order). ``device``: cpu,
+    cuda or auto (cuda when available)."""
+    from rdnet.train.loop import resolve_device
+    device = str(resolve_device(str(device)))
     if checkpoint is not None:
         path = Path(checkpoint)
         f = _checkpoint_file(path)
