@@ -68,6 +68,8 @@ def run_one(path: Path, method: str, work: Path, scores: bool = True) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--methods", nargs="*", default=["raw", "baf", "stcf", "gef"])
+    ap.add_argument("--recordings", nargs="*", default=list(RECORDINGS), choices=list(RECORDINGS),
+                    help="which recordings (default: all)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "restore.json")
     ap.add_argument("--big-gb", type=float, default=0.0,
                     help="also restore (baf) a file of about this many GiB: night.raw's data repeated (0: skip)")
@@ -79,6 +81,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for name, path in RECORDINGS.items():
+            if name not in args.recordings:
+                continue
             if not path.is_file():
                 results["recordings"][name] = {"skipped": f"{path} not present"}
                 continue
