@@ -2,8 +2,8 @@
 .h5/.hdf5, .aedat4, .raw and .dat (input only), .txt, .npz, .npy). The output is written
 atomically; extra event groups (e.g. /events_ideal) are kept from HDF5 to HDF5.
 
-Prophesee inputs (.raw, .dat) and HDF5 inputs going to .h5 or .npy are streamed chunk by
-chunk (bounded memory); ``.npy`` is a plain structured array with fields x, y, t, p
+Prophesee inputs (.raw, .dat), and HDF5 inputs going to .npy, are streamed chunk by chunk
+(bounded memory; HDF5 to HDF5 goes through load/save to keep the extra event groups); ``.npy`` is a plain structured array with fields x, y, t, p
 (tonic's layout; t in us int64, p 0/1) without the sensor size."""
 from __future__ import annotations
 

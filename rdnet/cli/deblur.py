@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from rdnet.cli.info import add_progress_arg
 from rdnet.config import add_params_args, load_cli_params
 
 
@@ -28,7 +29,7 @@ def register(subparsers) -> None:
     p.add_argument("--data-out", type=Path, default=None,
                    help="folder for the large outputs (restored.h5, deblurred/*.png); default OUT")
     add_params_args(p)
-    p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+    add_progress_arg(p)
     p.set_defaults(func=run)
 
 

@@ -15,9 +15,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from rdnet.config import add_params_args, load_cli_params
-from rdnet.cli.info import add_sensor_size_args, sensor_size_of
+from rdnet.cli.info import add_progress_arg, add_sensor_size_args, sensor_size_of
+from rdnet.restore.settings import METHODS
 
-METHOD_CHOICES = ("rdnet", "baf", "stcf", "gef", "raw")
 
 
 def register(subparsers) -> None:
@@ -25,13 +25,13 @@ def register(subparsers) -> None:
                               description=__doc__.split("\n\n", 1)[1])
     p.add_argument("recording", type=Path, help="recording (.aedat4, .h5, .txt, .npz, ...)")
     p.add_argument("out", type=Path, help="output OUT.h5 (OUT.json is written beside it)")
-    p.add_argument("--method", choices=METHOD_CHOICES, default=None,
+    p.add_argument("--method", choices=METHODS, default=None,
                    help="restorer (default: restore.method of params.yaml, rdnet)")
     p.add_argument("--checkpoint", type=Path, default=None,
                    help="learned restorer checkpoint (method rdnet; default: the study's, else the packaged one)")
     add_sensor_size_args(p)
     add_params_args(p)
-    p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+    add_progress_arg(p)
     p.set_defaults(func=run)
 
 

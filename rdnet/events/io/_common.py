@@ -63,6 +63,14 @@ def wrap_errors(path: str | Path, field: str | None = None, what: str = "cannot 
         raise as_format_error(path, e, field, what) from e
 
 
+def check_sensor_size(path: str | Path, size: tuple[int, int], requested: tuple[int, int] | None) -> None:
+    """:class:`FormatError` naming ``width/height`` when a requested sensor size (width, height)
+    differs from the one the file states (``requested`` None: nothing to check)."""
+    if requested is not None and tuple(int(v) for v in requested) != tuple(int(v) for v in size):
+        raise FormatError(path, "width/height", f"file says {size[0]}x{size[1]}, "
+                                                f"requested {requested[0]}x{requested[1]}")
+
+
 def temp_path_for(path: str | Path) -> Path:
     """A fresh, unused temporary file name in the folder of ``path`` (same file system,
     so ``os.replace`` is atomic). The file is created empty."""

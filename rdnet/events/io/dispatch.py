@@ -18,7 +18,7 @@ import logging
 from pathlib import Path
 
 from rdnet.errors import FormatError
-from rdnet.events.io._common import require_file
+from rdnet.events.io._common import check_sensor_size, require_file
 from rdnet.events.recording import Recording
 
 log = logging.getLogger(__name__)
@@ -39,9 +39,7 @@ def format_of(path: str | Path) -> str:
 
 
 def _check_size(path: Path, rec: Recording, sensor_size: tuple[int, int] | None) -> Recording:
-    if sensor_size is not None and tuple(int(v) for v in sensor_size) != (rec.width, rec.height):
-        raise FormatError(path, "width/height", f"file says {rec.width}x{rec.height}, "
-                                                f"requested {sensor_size[0]}x{sensor_size[1]}")
+    check_sensor_size(path, (rec.width, rec.height), sensor_size)
     return rec
 
 

@@ -46,7 +46,7 @@ import numpy as np
 
 from rdnet.errors import FormatError, ValidationError
 from rdnet.events.core import EVENT_DTYPE, Events
-from rdnet.events.io._common import require_file, wrap_errors
+from rdnet.events.io._common import check_sensor_size, require_file, wrap_errors
 
 log = logging.getLogger(__name__)
 
@@ -169,9 +169,8 @@ def read_header(path: str | Path, *, sensor_size: tuple[int, int] | None = None)
         if sensor_size is None:
             raise FormatError(path, "geometry", "the header gives no sensor size; pass --width/--height")
         size = tuple(int(v) for v in sensor_size)
-    elif sensor_size is not None and tuple(int(v) for v in sensor_size) != size:
-        raise FormatError(path, "width/height", f"file says {size[0]}x{size[1]}, "
-                                                f"requested {sensor_size[0]}x{sensor_size[1]}")
+    else:
+        check_sensor_size(path, size, sensor_size)
     w, h = size
     if not (0 < w <= 2048 and 0 < h <= 2048):
         raise FormatError(path, "geometry", f"implausible sensor size {w}x{h}")

@@ -91,28 +91,16 @@ class _ProphStream(EventStream):
     def chunks(self, max_events: int = 1_000_000) -> Iterator[Events]:
         return self._reader.chunks(self._check_max(max_events))
 
-    def slice_time(self, t0_us: int, t1_us: int) -> Events:
-        parts = []
-        for unit in self._reader.units():       # big units: one check per ~1M events
-            if len(unit) and int(unit.t[0]) >= t1_us:
-                break
-            if len(unit) and int(unit.t[-1]) >= t0_us:
-                parts.append(unit.slice_time(t0_us, t1_us).array.copy())
-        arr = np.concatenate(parts) if parts else np.empty(0, EVENT_DTYPE)
-        return Events(arr, self.width, self.height, validate=False)
-
 
 class _H5Stream(EventStream):
     def __init__(self, path: Path, sensor_size):
         import h5py
 
-        from rdnet.events.io._common import wrap_errors
+        from rdnet.events.io._common import check_sensor_size, wrap_errors
         from rdnet.events.io.hdf5 import H5EventReader, read_header
         self.path, self.format = path, "hdf5"
         self.width, self.height, self.sensor, _ = read_header(path)
-        if sensor_size is not None and tuple(int(v) for v in sensor_size) != (self.width, self.height):
-            raise FormatError(path, "width/height", f"file says {self.width}x{self.height}, "
-                                                    f"requested {sensor_size[0]}x{sensor_size[1]}")
+        check_sensor_size(path, (self.width, self.height), sensor_size)
         with wrap_errors(path), h5py.File(path, "r") as f:
             self.has_events = "events" in f
             self.has_frames = "frames" in f
