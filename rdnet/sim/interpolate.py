@@ -206,18 +206,16 @@ def luminance(images: np.ndarray) -> np.ndarray:
     return images.astype(np.float32, copy=False)
 
 
-def _log_luminance(frame: np.ndarray, log_eps: float, *, color: bool) -> np.ndarray:
-    """``log(Y + eps)`` of one frame (H, W[, 3]), as :func:`step_sizes` computes it."""
-    y = frame @ _LUMA if color else frame
+def _log_luminance(frames: np.ndarray, log_eps: float, *, color: bool) -> np.ndarray:
+    """float32 ``log(Y + eps)`` of a frame (H, W[, 3]) or a chain (K, H, W[, 3])."""
+    y = frames @ _LUMA if color else frames
     return np.log(y.astype(np.float32) + np.float32(log_eps))
 
 
 def step_sizes(chain: np.ndarray, log_eps: float, *, color: bool) -> np.ndarray:
     """(K - 1, H, W) float32 ``|log(Y_{k+1} + eps) - log(Y_k + eps)|`` along a
     (K, H, W[, 3]) chain of frames (Y = luminance)."""
-    y = chain @ _LUMA if color else chain
-    lg = np.log(y.astype(np.float32) + np.float32(log_eps))
-    return np.abs(np.diff(lg, axis=0))
+    return np.abs(np.diff(_log_luminance(chain, log_eps, color=color), axis=0))
 
 
 def criterion(steps: np.ndarray, quantile: float = 1.0) -> float:
@@ -659,8 +657,8 @@ def _unchanged(images: np.ndarray, t_us: np.ndarray, eps: float, bound: float, q
         np.abs(d, out=d)
         prev = lg[-1:]
         flat = d.reshape(d.shape[0], -1)
-        crits = flat.max(axis=1) if quantile >= 1.0 else [quantile_exact(r, quantile) for r in flat]
         strict = flat.max(axis=1)
+        crits = strict if quantile >= 1.0 else [quantile_exact(r, quantile) for r in flat]
         over = np.count_nonzero(flat > bound, axis=1)
         for st in sts:
             for c, m, o in zip(crits, strict, over):
