@@ -145,7 +145,7 @@ def iter_predictions(kind: str, model, pairs_path: str | Path, events: str = "de
                     raise ValueError(f"voxel_transform returned shape {t.shape}, expected {vox.shape}")
                 vox = t
             b["voxel"] = vox
-            if info.has_counts:
+            if info.has_counts and (split or decision is not None):   # per-polarity counts, when used
                 for k in EVENT_KINDS:
                     b[f"counts_{k}"] = np.stack([read(f"voxel_{k}_on"), read(f"voxel_{k}_off")],
                                                 1).round().astype(np.int64)

@@ -108,7 +108,7 @@ class _EventFilterTransform:
         t0, dur = int(self.t0[i]), int(self.dur[i])
         ev = self.events(int(self.seq[i]))
         if self.window is not None:
-            ev = self.window(ev.select((ev.t >= t0) & (ev.t <= t0 + dur)), t0, t0 + dur, i)
+            ev = self.window(ev.slice_time(t0, t0 + dur + 1), t0, t0 + dur, i)   # t0 <= t <= t0 + dur
         return voxel_grid(ev, self.bins, t0, dur, mode=self.mode, polarity="split")
 
     def counts(self, index: np.ndarray) -> np.ndarray:
@@ -120,11 +120,9 @@ class _EventFilterTransform:
 
 
 def _pairs_mode(pairs_path: Path) -> tuple[int, str]:
-    import h5py
-    from rdnet.train.data import read_pairs_info
-    with h5py.File(pairs_path, "r") as f:
-        mode = str(f.attrs.get("voxel_mode", "hard"))
-    return read_pairs_info(pairs_path).bins, mode
+    from rdnet.train.data import read_pairs_voxel
+    v = read_pairs_voxel(pairs_path)
+    return v["bins"], v["mode"] or "hard"
 
 
 def event_filter(name: str, pairs_path: Path, events_dir: Path, cfg: FilterConfig,
