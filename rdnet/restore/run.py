@@ -34,7 +34,7 @@ from rdnet.config import section, to_dict
 from rdnet.errors import FormatError
 from rdnet.events.core import Events, concatenate
 from rdnet.restore.base import get_restorer
-from rdnet.restore.stream import _open, windows
+from rdnet.restore.stream import windows
 
 log = logging.getLogger(__name__)
 
@@ -84,7 +84,8 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
         raise FormatError(out, None, "output must be an HDF5 file (.h5)")
     if out.resolve() == recording.resolve():
         raise FormatError(out, None, "output would overwrite the input recording")
-    with _open(recording, sensor_size) as src:
+    from rdnet.events.io.stream import open_events
+    with open_events(recording, sensor_size=sensor_size) as src:
         frames = src.frames()
         has_frames = frames is not None and len(frames) > 0
         restorer = get_restorer(method, params, checkpoint, has_frames=has_frames)

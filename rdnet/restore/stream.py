@@ -1,8 +1,8 @@
 """Reading a recording for ``rdnet restore``: chunks of events grouped into consecutive
 time windows, memory bounded.
 
-All reading goes through :func:`_open` (:func:`rdnet.events.io.stream.open_events`:
-memory stays bounded on large Prophesee and HDF5 files). The windows tile the
+The chunks come from :func:`rdnet.events.io.stream.open_events` (memory stays bounded on
+large Prophesee and HDF5 files). The windows tile the
 recording from its first event: [t_first + k W, t_first + (k + 1) W), k = 0, 1, ...;
 every window up to the one holding the last event is yielded (empty ones included),
 so a stateful restorer sees the stream in order.
@@ -10,23 +10,12 @@ so a stateful restorer sees the stream in order.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterator
+from typing import Iterator
 
 import numpy as np
 
 from rdnet.errors import FormatError
 from rdnet.events.core import Events, concatenate
-
-if TYPE_CHECKING:
-    from rdnet.events.io.stream import EventStream
-
-
-def _open(path: str | Path, sensor_size: tuple[int, int] | None = None) -> EventStream:
-    """Open ``path`` for streaming: :func:`rdnet.events.io.stream.open_events` (Prophesee
-    RAW/DAT decoded block by block, HDF5 read chunk by chunk, the small formats loaded);
-    ``sensor_size`` (width, height) for formats that do not store it."""
-    from rdnet.events.io.stream import open_events
-    return open_events(path, sensor_size=sensor_size)
 
 
 def windows(chunks: Iterator[Events], window_us: int, *, path: str | Path = "recording"
