@@ -64,6 +64,7 @@ def _section(params: dict, name: str, target: str):
 
 
 def run(args) -> int:
+    import contextlib
     import itertools
 
     import numpy as np
@@ -73,7 +74,7 @@ def run(args) -> int:
     from rdnet.events.core import Events
     from rdnet.events.io import H5RecordingWriter
     from rdnet.events.io.hdf5 import BackgroundWrites
-    from rdnet.sim.pair import frame_chunks, stream_events
+    from rdnet.sim.pair import frame_chunks, prefetch, stream_events
     from rdnet.sim.randomize import degradation_level, draw_degrade
     from rdnet.sim.sensor import Sensor
     from rdnet.sim.settings import DegradeConfig
@@ -144,11 +145,14 @@ def run(args) -> int:
                 yield f
 
         with BackgroundWrites(w) as bg:   # compression and writing overlap the simulation
-            chunks = frame_chunks(counted(bg), interpolate=interp, log_eps=sensor.log_eps, chunk=args.chunk)
-            for evs in stream_events(chunks, sensors, progress=True):
-                for g, ev in zip(groups, evs):
-                    bg.append_events(ev, g)
-                    counts[g] += len(ev)
+            # reading, log conversion, statistics and flows run one chunk or two ahead in
+            # a thread of their own, overlapping the sensor kernel (which drops the GIL)
+            with contextlib.closing(prefetch(frame_chunks(counted(bg), interpolate=interp,
+                                                          log_eps=sensor.log_eps, chunk=args.chunk))) as chunks:
+                for evs in stream_events(chunks, sensors, progress=True):
+                    for g, ev in zip(groups, evs):
+                        bg.append_events(ev, g)
+                        counts[g] += len(ev)
     desc = ", ".join(f"{n:,} in /{g}" for g, n in counts.items())
     print(f"wrote {args.output} ({n_frames} frames, {width} x {height}; events: {desc})")
     return 0

@@ -120,6 +120,70 @@ def frame_chunks(frames: Frames | np.ndarray | Iterable[Frames], t_us: np.ndarra
         yield np.concatenate(buf_im), np.concatenate(buf_t)
 
 
+class _Done:
+    """End marker of :func:`prefetch` (the producer finished or raised ``error``)."""
+
+    def __init__(self, error: BaseException | None = None):
+        self.error = error
+
+
+def prefetch(items: Iterable, depth: int = 2) -> Iterator:
+    """Iterate ``items`` in a background thread, at most ``depth`` items ahead: the
+    producer (frame reading and decompression, log conversion, statistics, optical flow;
+    numpy, h5py and OpenCV release the GIL in their large operations) overlaps the
+    consumer's work (the sensor kernel, which runs without the GIL). Same items, same
+    order; an exception in the producer is raised in the consumer at that item. Closing
+    the returned generator early (or an exception in the consumer) stops the producer
+    at its next item and joins it, so no thread outlives the loop. The producer must not
+    share mutable state with the consumer (e.g. a random generator)."""
+    import queue
+    import threading
+
+    if depth < 1:
+        raise ValidationError("depth", f"must be >= 1, got {depth}")
+    q: "queue.Queue" = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    it = iter(items)
+
+    def work() -> None:
+        try:
+            for item in it:
+                if not put(item):
+                    return
+        except BaseException as e:   # handed to the consumer
+            put(_Done(e))
+            return
+        finally:
+            close = getattr(it, "close", None)
+            if close is not None:   # a generator's cleanup runs in the thread that ran it
+                close()
+        put(_Done())
+
+    th = threading.Thread(target=work, name="rdnet-prefetch", daemon=True)
+    th.start()
+    try:
+        while True:
+            item = q.get()
+            if isinstance(item, _Done):
+                if item.error is not None:
+                    raise item.error
+                return
+            yield item
+    finally:
+        stop.set()
+        th.join()
+
+
 def stream_events(chunks: Iterable[tuple[np.ndarray, np.ndarray]], sensors: Sequence[Sensor], *,
                   progress: bool = False, total: int | None = None) -> Iterator[list[Events]]:
     """Feed every chunk to every sensor; yield, per chunk and at the end (flush), the list

@@ -122,3 +122,63 @@ def test_randomize_details():
                           RandomizeConfig(), "test", np.random.default_rng(1))
     assert capped.hot_pixel_fraction <= 1.0
     assert set(EFFECT_KEYS) >= set(DEG.active())
+
+
+# --- prefetch: the producer thread of the CLI ---------------------------------------------------
+
+def _prefetch_threads():
+    import threading
+    return [t for t in threading.enumerate() if t.name == "rdnet-prefetch"]
+
+
+def test_prefetch_keeps_items_and_order_and_bounds_the_lead():
+    from rdnet.sim.pair import prefetch
+    produced = []
+
+    def items():
+        for i in range(50):
+            produced.append(i)
+            yield np.full(3, i)
+
+    got = []
+    for a in prefetch(items(), depth=2):
+        # the producer is at most depth items (+ the one it holds) ahead of the consumer
+        assert len(produced) - len(got) <= 4
+        got.append(int(a[0]))
+    assert got == list(range(50))
+    assert not _prefetch_threads()
+    assert list(prefetch([])) == []
+    with pytest.raises(ValidationError):
+        next(prefetch([1], depth=0))
+
+
+def test_prefetch_raises_producer_errors_in_the_consumer_and_stops_on_close():
+    from rdnet.sim.pair import prefetch
+
+    def failing():
+        yield 1
+        yield 2
+        raise ValueError("broken chunk")
+
+    it = prefetch(failing())
+    assert [next(it), next(it)] == [1, 2]
+    with pytest.raises(ValueError, match="broken chunk"):
+        next(it)
+    assert not _prefetch_threads()
+
+    closed = []
+
+    def endless():
+        try:
+            i = 0
+            while True:
+                yield i
+                i += 1
+        finally:
+            closed.append(True)
+
+    it = prefetch(endless(), depth=1)
+    assert next(it) == 0
+    it.close()   # the consumer stops early: the producer stops, its generator is closed
+    assert closed == [True]
+    assert not _prefetch_threads()

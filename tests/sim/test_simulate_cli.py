@@ -231,3 +231,28 @@ def test_background_writes_keep_order_and_raise_errors(tmp_path):
             bg.append_events(ev([5, 6]))
             bg.append_events(ev([1]))            # out of order: fails in the thread
     assert not bad.exists()
+
+
+def test_error_while_reading_ahead_exits_2_without_output_or_thread(pan_u8, tmp_path, monkeypatch, capsys):
+    """A source that fails after its first chunk (read in the prefetch thread): one-line
+    error, exit 2, no output file, no thread left."""
+    import threading
+
+    import rdnet.sim.sources as sources
+    from rdnet.errors import FormatError
+
+    src, params, im, t = pan_u8
+    real = sources.iter_frames
+
+    def failing(path, **kw):
+        it = real(path, **kw)
+        yield next(it)
+        yield next(it)
+        raise FormatError(path, "frames/images", "corrupt chunk")
+
+    monkeypatch.setattr(sources, "iter_frames", failing)
+    out = tmp_path / "out.h5"
+    assert cli.main(["simulate", str(src), str(out), "--params", str(params), "--chunk", "2"]) == 2
+    assert "corrupt chunk" in capsys.readouterr().err
+    assert not out.exists() and not list(tmp_path.glob("out*"))
+    assert not [th for th in threading.enumerate() if th.name in ("rdnet-prefetch", "h5-writer")]
