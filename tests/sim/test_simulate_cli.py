@@ -256,3 +256,22 @@ def test_error_while_reading_ahead_exits_2_without_output_or_thread(pan_u8, tmp_
     assert "corrupt chunk" in capsys.readouterr().err
     assert not out.exists() and not list(tmp_path.glob("out*"))
     assert not [th for th in threading.enumerate() if th.name in ("rdnet-prefetch", "h5-writer")]
+
+
+def test_kernels_leave_a_core_during_the_run_and_restore_the_count(pan_u8, tmp_path, monkeypatch):
+    import numba
+
+    import rdnet.sim.sensor as sensor_mod
+    src, params, _, _ = pan_u8
+    before = numba.get_num_threads()
+    seen = []
+    real_step = sensor_mod.Sensor.step
+
+    def step(self, *a, **kw):
+        seen.append(numba.get_num_threads())
+        return real_step(self, *a, **kw)
+
+    monkeypatch.setattr(sensor_mod.Sensor, "step", step)
+    assert cli.main(["simulate", str(src), str(tmp_path / "o.h5"), "--params", str(params)]) == 0
+    assert seen and set(seen) == {max(1, before - 1)}
+    assert numba.get_num_threads() == before
