@@ -165,9 +165,11 @@ def run(args) -> int:
 
         with BackgroundWrites(w) as bg, _leave_a_core():   # compression and writing overlap the simulation
             # reading, log conversion, statistics and flows run one chunk or two ahead in
-            # a thread of their own, overlapping the sensor kernel (which drops the GIL)
+            # a thread of their own, overlapping the sensor kernel (which drops the GIL);
+            # the log frames the statistics computed are handed to the sensors
             with contextlib.closing(prefetch(frame_chunks(counted(bg), interpolate=interp,
-                                                          log_eps=sensor.log_eps, chunk=args.chunk))) as chunks:
+                                                          log_eps=sensor.log_eps, chunk=args.chunk,
+                                                          with_log=True))) as chunks:
                 for evs in stream_events(chunks, sensors, progress=True):
                     for g, ev in zip(groups, evs):
                         bg.append_events(ev, g)

@@ -550,8 +550,8 @@ def fill_log(chain: np.ndarray, t_us: np.ndarray, log_eps: float, bound: float
 
 
 def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = InterpolateConfig(),
-             log_eps: float = 0.01, *, stats: UpsampleStats | None = None, warn: bool = True
-             ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+             log_eps: float = 0.01, *, stats: UpsampleStats | None = None, warn: bool = True,
+             with_log: bool = False) -> Iterator[tuple]:
     """Stream the adaptively upsampled sequence pair by pair.
 
     ``images``: (N, H, W) or (N, H, W, 3) float32 linear; ``t_us``: (N,) int64 strictly
@@ -563,7 +563,10 @@ def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = Inte
     them. ``cfg.log_eps`` overrides ``log_eps`` (the sensor's) when set. Pass an
     :class:`UpsampleStats` to collect counts and the achieved log steps; a warning is
     logged when the bound is not met (``warn``; :func:`warn_if_over` for callers that
-    stream many calls).
+    stream many calls). ``with_log``: yield ``(images_chunk, t_chunk, log_chunk)`` where
+    ``log_chunk`` is ``log(images_chunk + eps)`` (float32, what the sensor computes from
+    the frames) when it was computed anyway for the statistics (grey frames, nothing
+    inserted), else None.
     """
     images = np.asarray(images)
     t_us = np.asarray(t_us)
@@ -585,14 +588,16 @@ def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = Inte
     here = UpsampleStats()
     sts = [here] if stats is None else [here, stats]
     if n == 1:
-        yield _as_float(images[:1]), t_us[:1].copy()
+        one = (_as_float(images[:1]), t_us[:1].copy())
+        yield one + (None,) if with_log else one
         return
     color = images.ndim == 4
     quantile = 1.0 if cfg.fill_log else cfg.pixel_quantile
     if not cfg.fill_log and (cfg.method == "none" or cfg.max_upsample <= 1):
         # nothing can be inserted: the frames as given, in one chunk; the steps (for the
         # stats and the warning only) measured on the whole sequence at once
-        yield _unchanged(images, t_us, eps, bound, quantile, color, sts)
+        ims, ts, lg = _unchanged(images, t_us, eps, bound, quantile, color, sts, keep_log=with_log)
+        yield (ims, ts, lg) if with_log else (ims, ts)
         if warn:
             warn_if_over(here, cfg)
         return
@@ -630,29 +635,34 @@ def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = Inte
         for st in sts:
             st._record(steps, bound, crit, chain.shape[0] - 2, filled)
         last = i == n - 2
-        yield (chain if last else chain[:-1]), (times if last else times[:-1])
+        out = (chain if last else chain[:-1]), (times if last else times[:-1])
+        yield out + (None,) if with_log else out
     if warn:
         warn_if_over(here, cfg)
 
 
 def _unchanged(images: np.ndarray, t_us: np.ndarray, eps: float, bound: float, quantile: float,
-               color: bool, sts: list[UpsampleStats], block: int = 4) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`upsample` when nothing can be inserted: ``(frames as float32, t_us)``, every
-    pair recorded in ``sts`` as the pair-by-pair loop records it (the same steps and
+               color: bool, sts: list[UpsampleStats], block: int = 4, keep_log: bool = False
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`upsample` when nothing can be inserted: ``(frames as float32, t_us, log)``,
+    every pair recorded in ``sts`` as the pair-by-pair loop records it (the same steps and
     criterion), the steps computed ``block`` pairs at a time in place (cache-sized: about
-    half the time of whole-chunk temporaries)."""
+    half the time of whole-chunk temporaries). ``log``: with ``keep_log`` and grey frames,
+    ``log(frames + eps)`` of every frame (float32, computed once for the steps), else None."""
     ims = _as_float(images)
     e = np.float32(eps)
+    kept = np.empty_like(ims) if keep_log and not color else None
 
-    def logs(frames: np.ndarray) -> np.ndarray:
+    def logs(a: int, b: int) -> np.ndarray:
         if color:
-            return np.stack([_log_luminance(f, eps, color=True) for f in frames])
-        out = frames + e
+            return np.stack([_log_luminance(f, eps, color=True) for f in ims[a:b]])
+        out = np.empty_like(ims[a:b]) if kept is None else kept[a:b]
+        np.add(ims[a:b], e, out=out)
         return np.log(out, out=out)
 
-    prev = logs(ims[:1])
+    prev = logs(0, 1)
     for s in range(0, ims.shape[0] - 1, block):
-        lg = logs(ims[s + 1:s + 1 + block])
+        lg = logs(s + 1, s + 1 + block)
         d = np.empty_like(lg)
         np.subtract(lg[:1], prev, out=d[:1])
         np.subtract(lg[1:], lg[:-1], out=d[1:])
@@ -665,7 +675,7 @@ def _unchanged(images: np.ndarray, t_us: np.ndarray, eps: float, bound: float, q
         for st in sts:
             for c, m, o in zip(crits, strict, over):
                 st._add(bound, float(c), 0, 0, flat.shape[1], float(m), int(o))
-    return ims, t_us.copy()
+    return ims, t_us.copy(), kept
 
 
 def warn_if_over(stats: UpsampleStats, cfg: InterpolateConfig) -> None:

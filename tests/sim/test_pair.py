@@ -182,3 +182,26 @@ def test_prefetch_raises_producer_errors_in_the_consumer_and_stops_on_close():
     it.close()   # the consumer stops early: the producer stops, its generator is closed
     assert closed == [True]
     assert not _prefetch_threads()
+
+
+def test_frame_chunks_hand_over_the_log_frames_the_statistics_computed():
+    import dataclasses as dc
+
+    from rdnet.sim.interpolate import InterpolateConfig, UpsampleStats
+    rng = np.random.default_rng(1)
+    im = rng.integers(0, 256, (11, 36, 40), dtype=np.uint8)
+    t = np.arange(11, dtype=np.int64) * 1000
+    parts = [Frames(im[i:i + 4], t[i:i + 4], np.zeros(len(t[i:i + 4]), np.int64)) for i in range(0, 11, 4)]
+    cfg = InterpolateConfig(method="flow", max_upsample=1, pixel_quantile=0.99)
+    plain_stats, log_stats = UpsampleStats(), UpsampleStats()
+    plain = list(frame_chunks(parts, interpolate=cfg, log_eps=0.02, chunk=4, stats=plain_stats))
+    got = list(frame_chunks(parts, interpolate=cfg, log_eps=0.02, chunk=4, stats=log_stats, with_log=True))
+    assert [len(c) for c in got] == [3] * len(plain) and len(plain) == 3
+    assert plain_stats.as_dict() == log_stats.as_dict()
+    for (g, tt), (g2, tt2, lg) in zip(plain, got):
+        assert np.array_equal(g, g2) and np.array_equal(tt, tt2)
+        assert lg.dtype == np.float32 and np.array_equal(lg, np.log(g + np.float32(0.02)))
+    # not computed (None): frames inserted, another log_eps, no interpolation at all
+    for c, eps in ((dc.replace(cfg, max_upsample=4, method="linear"), 0.02), (dc.replace(cfg, log_eps=0.05), 0.02)):
+        assert all(lg is None for *_, lg in frame_chunks(parts, interpolate=c, log_eps=eps, chunk=4, with_log=True))
+    assert all(lg is None for *_, lg in frame_chunks(parts, log_eps=0.02, chunk=4, with_log=True))

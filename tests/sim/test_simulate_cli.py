@@ -258,7 +258,7 @@ def test_error_while_reading_ahead_exits_2_without_output_or_thread(pan_u8, tmp_
     assert not [th for th in threading.enumerate() if th.name in ("rdnet-prefetch", "h5-writer")]
 
 
-def test_kernels_leave_a_core_during_the_run_and_restore_the_count(pan_u8, tmp_path, monkeypatch):
+def test_kernels_leave_a_core_and_get_the_log_frames_of_the_statistics(pan_u8, tmp_path, monkeypatch):
     import numba
 
     import rdnet.sim.sensor as sensor_mod
@@ -267,11 +267,17 @@ def test_kernels_leave_a_core_during_the_run_and_restore_the_count(pan_u8, tmp_p
     seen = []
     real_step = sensor_mod.Sensor.step
 
-    def step(self, *a, **kw):
-        seen.append(numba.get_num_threads())
-        return real_step(self, *a, **kw)
+    def step(self, *a, log_frames=None, **kw):
+        seen.append((numba.get_num_threads(), log_frames is not None))
+        return real_step(self, *a, log_frames=log_frames, **kw)
 
     monkeypatch.setattr(sensor_mod.Sensor, "step", step)
-    assert cli.main(["simulate", str(src), str(tmp_path / "o.h5"), "--params", str(params)]) == 0
-    assert seen and set(seen) == {max(1, before - 1)}
+    assert cli.main(["simulate", str(src), str(tmp_path / "o.h5"), "--params", str(params), "--chunk", "3"]) == 0
+    # frames inserted: the sensors compute the log themselves
+    assert set(seen) == {(max(1, before - 1), False)}
     assert numba.get_num_threads() == before
+    seen.clear()
+    assert cli.main(["simulate", str(src), str(tmp_path / "o1.h5"), "--params", str(params), "--chunk", "3",
+                     "--set", "interpolate.max_upsample=1"]) == 0
+    # nothing inserted: the log frames of the statistics are handed over
+    assert set(seen) == {(max(1, before - 1), True)} and len(seen) == 3
