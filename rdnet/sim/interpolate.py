@@ -339,6 +339,36 @@ def _dis(preset: str, finest_scale: int | None = None):
     return entry[0]
 
 
+_FLOW_POOL: tuple[int, "object"] | None = None
+_FLOW_POOL_LOCK = threading.Lock()
+
+
+def _flow_pool():
+    """Threads for the backward flow of a pair, computed while the calling thread computes
+    the forward one (OpenCV's DIS runs on one core and releases the GIL: ~7 ms each at
+    346 x 260, medium). Each worker has its own reused DIS instance (:func:`_dis`), so the
+    flows are the same bit for bit. Made again in a forked child (the parent's threads do
+    not exist there)."""
+    global _FLOW_POOL
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+    with _FLOW_POOL_LOCK:
+        if _FLOW_POOL is None or _FLOW_POOL[0] != os.getpid():
+            workers = max(1, min(4, os.cpu_count() or 1))
+            _FLOW_POOL = (os.getpid(), ThreadPoolExecutor(workers, thread_name_prefix="rdnet-flow"))
+        return _FLOW_POOL[1]
+
+
+def _flows_both_ways(u0: np.ndarray, u1: np.ndarray, cfg: InterpolateConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``(flow u0 -> u1, flow u1 -> u0)`` of encoded frames, the second in a pool thread."""
+    back = _flow_pool().submit(_flow_of_u8, u1, u0, cfg)
+    try:
+        f01 = _flow_of_u8(u0, u1, cfg)
+    finally:
+        f10 = back.result()
+    return f01, f10
+
+
 def optical_flow(a: np.ndarray, b: np.ndarray, cfg: InterpolateConfig) -> np.ndarray:
     """(H, W, 2) float32 flow from luminance ``a`` to ``b`` (a(x) ~ b(x + F(x))); the
     frames must have both sides >= :data:`MIN_FLOW_SIDE` (ValidationError otherwise)."""
@@ -416,8 +446,7 @@ class PairInterpolator:
             y0, y1 = luminance(self.f0), luminance(self.f1)
             _check_flow_size(y0.shape)
             u0, u1 = _flow_u8(y0), _flow_u8(y1)   # encoded once for both directions
-            f01 = _flow_of_u8(u0, u1, self.cfg)
-            f10 = _flow_of_u8(u1, u0, self.cfg)
+            f01, f10 = _flows_both_ways(u0, u1, self.cfg)   # in parallel
             gx, gy = _grid(*y0.shape)
             if self.cfg.occlusion:
                 o0, o1 = _occluded(f01, f10, gx, gy), _occluded(f10, f01, gx, gy)
