@@ -3,7 +3,7 @@
 1. Held-out simulated test split (a pairs file with per-polarity voxels): for each
    RestoreNet checkpoint and for the raw degraded events, over every test row at full
    frame: event precision / recall / F1 matched per voxel and polarity against the
-   undegraded events (:func:`rdnet.nn.decision.match_counts`), count ratio restored /
+   undegraded events (:func:`rdnet.eval.events.match_metrics`), count ratio restored /
    undegraded, signed-voxel L1 over all voxels and over event voxels (where the degraded
    or undegraded voxel is non-zero). Restored events are the checkpoint's stored decision
    applied to its output (counts: fitted occupancy threshold; signed: rounding).
@@ -28,7 +28,8 @@ import numpy as np
 import torch
 
 from rdnet.config import load_params, section
-from rdnet.nn.decision import decide_counts, match_counts, split_signed
+from rdnet.eval.events import match_metrics
+from rdnet.nn.decision import decide_counts, polarity_grid, split_signed
 from rdnet.train import checkpoint as ckpt_mod
 from rdnet.train.data import PairsDataset
 from rdnet.train.loop import predict_counts
@@ -42,7 +43,8 @@ def pair_metrics(restored_counts: np.ndarray, target_counts: np.ndarray, degrade
     signed = lambda c: c[:, :b].astype(np.float64) - c[:, b:]  # noqa: E731
     r, u, d = signed(restored_counts), signed(target_counts), signed(degraded_counts)
     ev = (u != 0) | (d != 0)
-    out = match_counts(restored_counts, target_counts)
+    m = match_metrics(polarity_grid(restored_counts), polarity_grid(target_counts))
+    out = {k: m[k] for k in ("precision", "recall", "f1", "count_ratio")}
     out["l1_all"] = float(np.abs(r - u).mean())
     out["l1_events"] = float(np.abs(r - u)[ev].mean())
     out["events"] = int(restored_counts.sum())

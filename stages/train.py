@@ -12,14 +12,21 @@ def main(args, params):
     from rdnet.study.config import NetworkConfig, network
     from rdnet.study.training import train_seeds
     from rdnet.train.distributed import cleanup, init_from_env
-    init_from_env(section(params, "train").device)      # under torchrun (study.launcher): join the group
+    train_cfg = section(params, "train")
+    if args.restore_output:                               # e.g. the paper's signed stage 1 beside the counts one
+        import dataclasses
+        train_cfg = dataclasses.replace(train_cfg, restore_output=args.restore_output)
+    if args.stage2_input:                                 # e.g. RDNet whose stage 2 also reads the raw events
+        import dataclasses
+        train_cfg = dataclasses.replace(train_cfg, stage2_input=args.stage2_input)
+    init_from_env(train_cfg.device)                       # under torchrun (study.launcher): join the group
     net = network(params, args.network) if args.network else NetworkConfig(task=args.task, events=args.events)
     study = section(params, "study")
     init_deblur = None
     if net.task == "rdnet" and study.rdnet_stage2_init:
         network(params, study.rdnet_stage2_init)          # must name a network of the study
         init_deblur = args.models / study.rdnet_stage2_init
-    summary = train_seeds(net, study, section(params, "train"), section(params, "model"),
+    summary = train_seeds(net, study, train_cfg, section(params, "model"),
                           args.train, args.out, init=args.init, init_deblur=init_deblur, progress=True,
                           timing=args.timing)
     cleanup()
@@ -33,6 +40,10 @@ def _parser():
     g.add_argument("--network", help="an entry of the `networks` section of params.yaml")
     g.add_argument("--task", help="a training task (restore, rdnet, deblur, ...)")
     p.add_argument("--events", choices=["degraded", "undegraded"], default="degraded", help="with --task")
+    p.add_argument("--restore-output", choices=["signed_masked", "counts"], default=None,
+                   help="overrides train.restore_output (stage-1 output of restore/rdnet tasks)")
+    p.add_argument("--stage2-input", choices=["restored", "dual"], default=None,
+                   help="overrides train.stage2_input (task rdnet: what stage 2 reads)")
     p.add_argument("--train", type=Path, default=Path("data/pairs/train.h5"))
     p.add_argument("--init", type=Path, default=None,
                    help="starting weights: a network directory (seed by seed) or a .pt file")

@@ -39,6 +39,7 @@ class LoadedRDNet:
     image_channels: int
     bins: int
     note: str = ""
+    decision: dict | None = None     # stage 1's voxel -> event decision (count output: fitted threshold)
 
 
 def resolve_checkpoint(path: str | Path | None) -> Path:
@@ -68,7 +69,7 @@ def load_rdnet(path: str | Path, model_cfg: ModelConfig, voxel: VoxelConfig,
     ck = ck_mod.read_checkpoint(path)
     ck_mod.check_compatible(path, ck, expected_kind="rdnet")
     args = ck["model_args"]
-    stored = {k: v for k, v in args.items() if k not in ("kind", "image_channels", "bins")}
+    stored = {k: v for k, v in args.items() if k not in ("kind", "image_channels", "bins", "restore_output")}
     wanted = ck_mod._plain({"size": model_cfg.size, **model_cfg.overrides()})
     if stored != wanted:
         raise FormatError(path, "model_args", f"holds a {_arch(stored)} network, the params' model "
@@ -92,8 +93,17 @@ def load_rdnet(path: str | Path, model_cfg: ModelConfig, voxel: VoxelConfig,
                 f"were); assumed the params': mode={voxel.mode!r}, normalize={voxel.normalize!r}")
         log.warning(note)
     net = ck_mod.model_from_checkpoint(path, ck, device).eval()
+    from rdnet.errors import ValidationError
+    from rdnet.nn.decision import read_decision
+    try:
+        decision = read_decision((ck.get("extra") or {}).get("decision"), net.restore.output)
+    except ValidationError as e:
+        raise FormatError(path, "extra.decision", str(e)) from None
+    if net.restore.output == "counts" and _norm(voxel.normalize) is not None:
+        raise FormatError(path, "model_args.restore_output", "a count-output stage 1 reads raw per-polarity "
+                          f"counts; voxel.normalize is {voxel.normalize!r}")
     return LoadedRDNet(net=net, path=path, image_channels=int(args["image_channels"]),
-                       bins=int(args["bins"]), note=note)
+                       bins=int(args["bins"]), note=note, decision=decision)
 
 
 def _norm(value):

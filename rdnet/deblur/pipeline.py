@@ -14,6 +14,12 @@ Windows (:class:`FrameWindows`):
   (consecutive windows tile the recording); also the fallback for frames without an
   exposure time.
 
+With a count-output stage 1 (``train.restore_output: counts``) the windows become
+per-polarity count grids (``voxel_grid(polarity="split")``, raw counts), stage 2 reads
+stage 1's signed expected counts, and the restored events are the counts the
+checkpoint's fitted decision keeps (:func:`rdnet.nn.decision.decided_events`, as
+``rdnet restore --method rdnet`` does).
+
 The *restored event stream* is stage 1's output over the interval windows, rounded to
 whole events (:func:`rdnet.events.voxel.voxel_events`); it covers the recording from the
 first to the last frame, so that the events between consecutive frames can be scored
@@ -120,14 +126,17 @@ def network_images(frames: Frames, image_channels: int, source: str = "recording
 
 
 def window_voxels(events: Events, windows: FrameWindows, index: np.ndarray, voxel: VoxelConfig,
-                  height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+                  height: int, width: int, *, split: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(n, bins, H, W) signed-count voxel grids of the windows ``index`` and (n,) the
     divisor of each grid's normalisation (1 for raw counts): the network input is
-    ``grids / scales``."""
+    ``grids / scales``. ``split``: (n, 2 * bins, H, W) ON-then-OFF count grids (the
+    count-output stage 1's input; raw counts, scales 1)."""
     if (events.width, events.height) != (width, height):
         raise ValidationError("events", f"sensor {events.width}x{events.height} != frames {width}x{height}")
     grids = np.stack([voxel_grid(events, voxel.bins, int(windows.start_us[k]), int(windows.duration_us[k]),
-                                 mode=voxel.mode) for k in index])
+                                 mode=voxel.mode, polarity="split" if split else "signed") for k in index])
+    if split:
+        return grids.reshape(grids.shape[0], -1, height, width), np.ones(grids.shape[0], np.float32)
     scales = np.array([normalization_scale(g, voxel.normalize) for g in grids], np.float32)
     return grids, scales
 
@@ -135,9 +144,12 @@ def window_voxels(events: Events, windows: FrameWindows, index: np.ndarray, voxe
 def run_rdnet(net, images: np.ndarray, voxels: np.ndarray, device: torch.device, *,
               restore_only: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
     """(restored voxels, deblurred images) of RDNet for (n, C, H, W) images and
-    (n, bins, H, W) voxels of the same frames (numpy float32); ``restore_only`` runs
-    stage 1 alone (deblurred None). ValidationError when the sizes disagree."""
+    (n, bins, H, W) voxels of the same frames (numpy float32; (n, 2 * bins, H, W) ON-then-OFF
+    counts for a count-output stage 1); ``restore_only`` runs stage 1 alone (deblurred
+    None). The restored voxels are signed (n, bins, H, W) (expected ON - OFF counts for the
+    count output). ValidationError when the sizes disagree."""
     cfg = net.restore.config
+    channels = net.restore.in_channels
     if images.ndim != 4 or voxels.ndim != 4:
         raise ValidationError("images/voxels", f"expected 4-D arrays, got {images.shape} and {voxels.shape}")
     if images.shape[0] != voxels.shape[0]:
@@ -147,13 +159,13 @@ def run_rdnet(net, images: np.ndarray, voxels: np.ndarray, device: torch.device,
                               f"{tuple(images.shape[-2:])}")
     if images.shape[1] != cfg["image_channels"]:
         raise ValidationError("images", f"{images.shape[1]} channels, the network takes {cfg['image_channels']}")
-    if voxels.shape[1] != cfg["bins"]:
-        raise ValidationError("voxels", f"{voxels.shape[1]} bins, the network takes {cfg['bins']}")
+    if voxels.shape[1] != channels:
+        raise ValidationError("voxels", f"{voxels.shape[1]} bins, the network takes {channels}")
     with torch.inference_mode():
         img = torch.from_numpy(np.ascontiguousarray(images, np.float32)).to(device)
         vox = torch.from_numpy(np.ascontiguousarray(voxels, np.float32)).to(device)
-        restored = net.restore(img, vox)
-        sharp = None if restore_only else net.deblur(img, restored).float().cpu().numpy()
+        restored = net.restore.signed(net.restore(img, vox))
+        sharp = None if restore_only else net.stage2(img, restored, vox).float().cpu().numpy()
         return restored.float().cpu().numpy(), sharp
 
 
@@ -175,6 +187,14 @@ class DeblurBatch:
     deblur_window_events: np.ndarray
 
 
+def _decided(net, images: np.ndarray, grids: np.ndarray, decision, device) -> np.ndarray:
+    """(n, 2, bins, H, W) restored events of a count-output stage 1 (its decision applied)."""
+    from rdnet.nn.decision import decided_events
+    img = torch.from_numpy(np.ascontiguousarray(images, np.float32)).to(device)
+    return decided_events(net.restore, img, torch.from_numpy(np.ascontiguousarray(grids, np.float32)).to(device),
+                          decision)
+
+
 def _to_events(restored: np.ndarray, scales: np.ndarray, windows: FrameWindows, index: np.ndarray,
                mode: str) -> Events:
     parts = [voxel_events(restored[i], int(windows.start_us[k]), int(windows.duration_us[k]),
@@ -184,9 +204,11 @@ def _to_events(restored: np.ndarray, scales: np.ndarray, windows: FrameWindows, 
 
 def iter_deblur(net, images: np.ndarray, events: Events, deblur_windows: FrameWindows,
                 event_windows: FrameWindows, voxel: VoxelConfig, *, batch_size: int = 4,
-                device: torch.device | str = "cpu", progress: bool = False) -> Iterator[DeblurBatch]:
+                device: torch.device | str = "cpu", progress: bool = False,
+                decision: dict | None = None) -> Iterator[DeblurBatch]:
     """Run both stages over ``images`` (N, C, H, W) in batches of ``batch_size`` frames
-    (module docstring); yields one :class:`DeblurBatch` per batch."""
+    (module docstring); yields one :class:`DeblurBatch` per batch. ``decision``: the
+    checkpoint's voxel -> event decision (required for a count-output stage 1)."""
     from tqdm.auto import tqdm
 
     n, _, H, W = images.shape
@@ -196,22 +218,38 @@ def iter_deblur(net, images: np.ndarray, events: Events, deblur_windows: FrameWi
     net = net.to(device).eval()
     same = deblur_windows.same_as(event_windows)
     counts = deblur_windows.event_counts(events)
+    split = net.restore.output == "counts"
+    if split and voxel.normalize not in (None, "none"):
+        raise ValidationError("voxel.normalize", "a count-output stage 1 reads raw per-polarity counts")
+
+    def stream(restored, grids, scales, windows, idx):
+        """Restored events of the windows: rounded signed voxels, or the decided counts."""
+        if split:
+            restored = _decided(net, images[idx], grids, decision, device)
+        return _to_events(restored, scales, windows, idx, voxel.mode)
+
+    def signed(grids):                   # the raw signed voxels of the figures
+        if not split:
+            return grids
+        g = grids.reshape(grids.shape[0], 2, -1, H, W)
+        return g[:, 0] - g[:, 1]
+
     with tqdm(total=n, desc="deblur", unit="frame", disable=(not progress) or None) as bar:
         for s in range(0, n, batch_size):
             idx = np.arange(s, min(n, s + batch_size))
             img = images[idx]
-            grids, scales = window_voxels(events, deblur_windows, idx, voxel, H, W)
+            grids, scales = window_voxels(events, deblur_windows, idx, voxel, H, W, split=split)
             restored, sharp = run_rdnet(net, img, grids / scales[:, None, None, None], device)
             if same:
                 raw_e, scales_e, restored_e, deblur_events = grids, scales, restored, None
             else:
-                deblur_events = _to_events(restored, scales, deblur_windows, idx, voxel.mode)
-                raw_e, scales_e = window_voxels(events, event_windows, idx, voxel, H, W)
+                deblur_events = stream(restored, grids, scales, deblur_windows, idx)
+                raw_e, scales_e = window_voxels(events, event_windows, idx, voxel, H, W, split=split)
                 restored_e, _ = run_rdnet(net, img, raw_e / scales_e[:, None, None, None], device,
                                           restore_only=True)
             bar.update(idx.size)
             yield DeblurBatch(index=idx, deblurred=np.clip(sharp, 0.0, 1.0),
-                              events=_to_events(restored_e, scales_e, event_windows, idx, voxel.mode),
-                              deblur_events=deblur_events, raw_voxel=raw_e,
+                              events=stream(restored_e, raw_e, scales_e, event_windows, idx),
+                              deblur_events=deblur_events, raw_voxel=signed(raw_e),
                               restored_voxel=restored_e * scales_e[:, None, None, None],
                               deblur_window_events=counts[idx])

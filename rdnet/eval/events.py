@@ -40,12 +40,10 @@ KEYS = ("precision", "recall", "f1", "count_ratio", "matched", "restored", "refe
 
 def polarity_counts(events: Events, bins: int, t0_us: int, duration_us: int) -> np.ndarray:
     """(2, bins, H, W) int32 event counts per polarity (0 = OFF, 1 = ON) and bin of the
-    events in [t0, t0 + duration] (binning of :func:`rdnet.events.voxel.voxel_grid`,
-    mode ``"hard"``)."""
-    on = events.p.astype(bool)
-    grids = [-voxel_grid(events.select(~on), bins, t0_us, duration_us, mode="hard"),
-             voxel_grid(events.select(on), bins, t0_us, duration_us, mode="hard")]
-    return np.rint(np.stack(grids)).astype(np.int32)
+    events in [t0, t0 + duration]: :func:`rdnet.events.voxel.voxel_grid` with
+    ``polarity="split"`` (ON, OFF) in mode ``"hard"``, channels reversed."""
+    split = voxel_grid(events, bins, t0_us, duration_us, mode="hard", polarity="split")
+    return np.rint(split[::-1]).astype(np.int32)
 
 
 def _ratio(num: np.ndarray, den: np.ndarray, empty: float) -> np.ndarray:

@@ -8,7 +8,16 @@ Methods (:data:`METHODS`, the names of the study rows):
 * ``image_only`` -- the image-only baseline (no events);
 * ``rdnet`` -- stage 1 then stage 2 on the ``events`` voxels (degraded in the paper);
   also scores the restored voxels;
-* ``restore`` -- a stage-1 checkpoint alone: restoration metrics only.
+* ``restore`` -- a stage-1 checkpoint alone (image-guided or events-only): restoration
+  metrics only.
+
+Stage 1 with the count output (``train.restore_output: counts``) reads the per-polarity
+counts of the pairs file (``voxel_<events>_on``/``_off``); ``restored`` is then the
+signed expected counts (what stage 2 reads). With the checkpoint's voxel -> event
+decision (:func:`stage1_decision`) the predictions also hold ``restored_counts``: the
+restored *events* as (n, 2, bins, H, W) ON/OFF counts (the fitted occupancy threshold
+for the count output, ``round`` for the signed one), scored by
+:func:`rdnet.eval.events.match_metrics` against ``counts_undegraded``.
 
 ``voxel_transform(voxels, index) -> voxels`` (optional) replaces the input voxels of a
 batch before the network sees them: ``voxels`` (n, B, H, W) float32 numpy, ``index``
@@ -54,23 +63,47 @@ def load_method(kind: str, checkpoint: str | Path | None, pairs_path: str | Path
         return None
     if checkpoint is None:
         raise ConfigError("checkpoint", f"method {kind!r} needs a checkpoint")
-    from rdnet.train.checkpoint import load_model
+    from rdnet.train.checkpoint import load_model, read_checkpoint
     info = read_pairs_info(pairs_path)
+    channels = info.channels
+    if kind == "restore" and int(read_checkpoint(checkpoint)["model_args"].get("image_channels", 1)) == 0:
+        channels = 0                                   # an events-only restorer (task restore_events)
     return load_model(checkpoint, expected_kind=METHODS[kind], device=_device(device),
-                      bins=info.bins, image_channels=info.channels)
+                      bins=info.bins, image_channels=channels)
+
+
+def stage1_of(kind: str, model):
+    """The RestoreNet of a loaded ``rdnet`` or ``restore`` model (None otherwise)."""
+    if model is None:
+        return None
+    return model.restore if kind == "rdnet" else model if kind == "restore" else None
+
+
+def stage1_decision(checkpoint: str | Path) -> dict:
+    """The voxel -> event decision stored with a stage-1 or RDNet checkpoint
+    (:func:`rdnet.nn.decision.read_decision`: rounding for the signed output)."""
+    from rdnet.nn.decision import read_decision
+    from rdnet.train.checkpoint import read_checkpoint
+    ck = read_checkpoint(checkpoint)
+    args = ck["model_args"]
+    output = args.get("restore_output", "signed")
+    return read_decision(ck.get("extra", {}).get("decision"), output)
 
 
 def iter_predictions(kind: str, model, pairs_path: str | Path, events: str = "degraded", *,
                      voxel_transform: VoxelTransform | None = None, batch_size: int = 4,
                      device: str | torch.device = "cpu", indices: Sequence[int] | None = None,
-                     progress: bool = False) -> Iterator[dict]:
+                     progress: bool = False, decision: dict | None = None) -> Iterator[dict]:
     """Batches of predictions: dicts of numpy arrays ``index``, ``level``, ``blurry``,
     ``sharp`` (target), ``voxel_undegraded``, ``voxel_degraded``, ``voxel`` (the input
     events after ``voxel_transform``), ``pred`` (predicted sharp image; absent for
-    ``restore``) and ``restored`` (restored voxels; rdnet and restore)."""
+    ``restore``) and ``restored`` (restored voxels; rdnet and restore); when the file has
+    per-polarity voxels ``counts_undegraded``/``counts_degraded`` ((n, 2, bins, H, W),
+    ON then OFF) and, with ``decision``, ``restored_counts`` (module docstring)."""
     import h5py
     from tqdm.auto import tqdm
 
+    from rdnet.nn.decision import decided_events
     if kind not in METHODS:
         raise ConfigError("method", f"unknown method {kind!r}; known: {', '.join(METHODS)}")
     if events not in EVENT_KINDS:
@@ -84,6 +117,13 @@ def iter_predictions(kind: str, model, pairs_path: str | Path, events: str = "de
     dev = _device(device)
     if model is not None:
         model.eval().to(dev)
+    stage1 = stage1_of(kind, model)
+    split = stage1 is not None and stage1.output == "counts"
+    if split and (voxel_transform is not None or not info.has_counts):
+        raise ConfigError("method", f"{kind}: a count-output stage 1 reads the per-polarity voxels of the "
+                          "pairs file (no voxel_transform; rerun the blur step for old files)")
+    if decision is not None and stage1 is None:
+        raise ConfigError("decision", f"method {kind!r} has no stage 1 to decide events for")
     bar = tqdm(total=int(rows.size), desc=f"predict {kind}", unit="sample", disable=(not progress) or None)
     with h5py.File(pairs_path, "r") as f, torch.inference_mode():
         for s in range(0, rows.size, batch_size):
@@ -105,21 +145,32 @@ def iter_predictions(kind: str, model, pairs_path: str | Path, events: str = "de
                     raise ValueError(f"voxel_transform returned shape {t.shape}, expected {vox.shape}")
                 vox = t
             b["voxel"] = vox
+            if info.has_counts:
+                for k in EVENT_KINDS:
+                    b[f"counts_{k}"] = np.stack([read(f"voxel_{k}_on"), read(f"voxel_{k}_off")],
+                                                1).round().astype(np.int64)
             if kind == "blurry":
                 b["pred"] = b["blurry"]
             else:
                 img = torch.from_numpy(b["blurry"]).to(dev)
                 v = torch.from_numpy(vox).to(dev)
+                if split:                                  # (n, 2 * bins, H, W): ON bins then OFF bins
+                    c = b[f"counts_{events}"]
+                    v = torch.from_numpy(c.reshape(c.shape[0], -1, *c.shape[3:]).astype(np.float32)).to(dev)
+                if stage1 is not None and not stage1.image_channels:
+                    img = None                             # events-only restorer
                 if kind == "rdnet":
                     restored, pred = model(img, v)
                     b["restored"] = restored.float().cpu().numpy()
                     b["pred"] = pred.float().cpu().numpy()
                 elif kind == "restore":
-                    b["restored"] = model(img, v).float().cpu().numpy()
+                    b["restored"] = model.signed(model(img, v)).float().cpu().numpy()
                 elif kind == "image_only":
                     b["pred"] = model(img, None).float().cpu().numpy()
                 else:
                     b["pred"] = model(img, v).float().cpu().numpy()
+                if decision is not None:
+                    b["restored_counts"] = decided_events(stage1, img, v, decision)
             bar.update(idx.size)
             yield b
     bar.close()
@@ -127,14 +178,17 @@ def iter_predictions(kind: str, model, pairs_path: str | Path, events: str = "de
 
 def predict(kind: str, checkpoint: str | Path | None, pairs_path: str | Path, events: str = "degraded",
             *, indices: Sequence[int] | None = None, voxel_transform: VoxelTransform | None = None,
-            batch_size: int = 4, device: str | torch.device = "cpu", progress: bool = False) -> dict:
+            batch_size: int = 4, device: str | torch.device = "cpu", progress: bool = False,
+            events_out: bool = False) -> dict:
     """All predictions of method ``kind`` for the rows ``indices`` (all rows by default),
-    concatenated into arrays (see :func:`iter_predictions`). For figures and small
-    sets; :func:`evaluate_row` streams instead."""
+    concatenated into arrays (see :func:`iter_predictions`; ``events_out``: with
+    ``restored_counts``, the checkpoint's decision applied). For figures and small sets;
+    :func:`evaluate_row` streams instead."""
     model = load_method(kind, checkpoint, pairs_path, device)
+    decision = stage1_decision(checkpoint) if events_out else None
     parts = list(iter_predictions(kind, model, pairs_path, events, voxel_transform=voxel_transform,
                                   batch_size=batch_size, device=device, indices=indices,
-                                  progress=progress))
+                                  progress=progress, decision=decision))
     if not parts:
         return {}
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}

@@ -82,19 +82,28 @@ def split_signed(signed: np.ndarray, axis: int = -3) -> np.ndarray:
     return np.concatenate([np.maximum(v, 0), np.maximum(-v, 0)], axis=axis)
 
 
-def match_counts(restored: np.ndarray, target: np.ndarray) -> dict:
-    """Event matching per voxel and polarity between two non-negative count grids of one
-    shape: ``matched = sum(min(restored, target))``; precision = matched / restored
-    events, recall = matched / target events, F1, and count ratio restored / target
-    (precision is 1 and the ratio 0 when nothing is restored; recall is 1 when the
-    target is empty)."""
-    r = np.asarray(restored, np.float64)
-    t = np.asarray(target, np.float64)
-    if r.shape != t.shape:
-        raise ValidationError("counts", f"restored {r.shape} and target {t.shape} differ")
-    nr, nt = float(r.sum()), float(t.sum())
-    m = float(np.minimum(r, t).sum())
-    prec = m / nr if nr > 0 else 1.0
-    rec = m / nt if nt > 0 else 1.0
-    f1 = 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0
-    return {"precision": prec, "recall": rec, "f1": f1, "count_ratio": nr / nt if nt > 0 else float("nan")}
+def polarity_grid(counts: np.ndarray) -> np.ndarray:
+    """The count network's channel layout (..., 2 * bins, H, W) (ON bins then OFF bins) as
+    (..., 2, bins, H, W) polarity grids, the layout of :func:`rdnet.eval.events.match_metrics`
+    (a view; which polarity comes first does not change its metrics)."""
+    c = np.asarray(counts)
+    if c.ndim < 3 or c.shape[-3] % 2:
+        raise ValidationError("counts", f"expected (..., 2 * bins, H, W) per-polarity counts, got {c.shape}")
+    return c.reshape(c.shape[:-3] + (2, c.shape[-3] // 2) + c.shape[-2:])
+
+
+def decided_events(stage1, image, x, decision: Mapping | None) -> np.ndarray:
+    """(n, 2, bins, H, W) int64 ON/OFF event counts decided from a stage-1 network's
+    output on the torch inputs ``image`` (None for events-only) and ``x`` (the signed
+    voxel, or ON-then-OFF counts for the count output): the count output applies the
+    fitted occupancy threshold of ``decision`` (:func:`decide_counts`), the signed output
+    rounds (``round(v)`` events of sign ``v``)."""
+    import torch
+    with torch.inference_mode():
+        if stage1.output == "counts":
+            mu, logit = stage1(image, x, return_heads=True)
+            c = decide_counts(mu.float().cpu().numpy(), torch.sigmoid(logit).float().cpu().numpy(),
+                              float(read_decision(decision, "counts")["threshold"]))
+        else:
+            c = split_signed(np.rint(stage1(image, x).float().cpu().numpy())).astype(np.int64)
+    return polarity_grid(c)

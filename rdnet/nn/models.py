@@ -178,28 +178,56 @@ class DeblurNet(nn.Module):
         return self.net.source_features(voxel)
 
 
+#: what RDNet's stage 2 reads: the restored voxel (the paper) or restored and raw ("dual").
+STAGE2_INPUTS = ("restored", "dual")
+
+
 class RDNet(nn.Module):
     """Both stages: forward(image, voxel) -> (restored_voxel, sharp_image).
+
+    ``stage2_input="dual"``: stage 2 reads the restored *and* the raw signed voxels
+    (2 x bins event channels), so that it cannot lose what DeblurNet on the raw events
+    (row 2) has: restoration can only add information.
 
     ``voxel`` is stage 1's input (signed voxel, or per-polarity counts for a counts
     RestoreNet); ``restored_voxel`` is always the signed voxel (B, bins, H, W) -- for the
     counts output the expected ON minus OFF counts -- which is what stage 2 reads, so
     DeblurNet's input (bins signed channels) is the same for both stage-1 outputs."""
 
-    def __init__(self, restore: RestoreNet, deblur: DeblurNet):
+    def __init__(self, restore: RestoreNet, deblur: DeblurNet, stage2_input: str = "restored"):
         super().__init__()
         if not deblur.use_events:
             raise ValueError("RDNet needs a DeblurNet with an event branch")
+        if stage2_input not in STAGE2_INPUTS:
+            raise ValueError(f"stage2_input must be one of {STAGE2_INPUTS}, got {stage2_input!r}")
+        factor = {"image_channels": 1, "bins": 2 if stage2_input == "dual" else 1}
         for key in ("image_channels", "bins"):
-            if restore.config[key] != deblur.config[key]:
+            if restore.config[key] * factor[key] != deblur.config[key]:
                 raise ValueError(f"stages disagree on {key}: {restore.config[key]} vs {deblur.config[key]}")
         self.restore = restore
         self.deblur = deblur
+        self.stage2_input = stage2_input
         self.config = {"kind": "rdnet", "restore": dict(restore.config), "deblur": dict(deblur.config)}
+        if stage2_input != "restored":
+            self.config["stage2_input"] = stage2_input
+
+    def stage2_events(self, restored: torch.Tensor, voxel: torch.Tensor) -> torch.Tensor:
+        """What stage 2 reads: the restored signed voxel, or (``dual``) it concatenated with
+        the raw signed voxel of stage 1's input ``voxel`` (ON - OFF for counts)."""
+        if self.stage2_input == "restored":
+            return restored
+        if self.restore.output == "counts":
+            b = self.restore.bins
+            voxel = voxel[:, :b] - voxel[:, b:]
+        return torch.cat([restored, voxel], 1)
+
+    def stage2(self, image: torch.Tensor, restored: torch.Tensor, voxel: torch.Tensor) -> torch.Tensor:
+        """Stage 2 on the restored voxel (and the raw one with ``dual``)."""
+        return self.deblur(image, self.stage2_events(restored, voxel))
 
     def forward(self, image: torch.Tensor, voxel: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         restored = self.restore.signed(self.restore(image, voxel))
-        return restored, self.deblur(image, restored)
+        return restored, self.stage2(image, restored, voxel)
 
 
 # --- construction ---------------------------------------------------------------------
@@ -275,11 +303,12 @@ def match_deblurnet(target: int, image_channels: int, bins: int, arch: dict,
 
 
 def build_model(kind: str, size: str = "tiny", image_channels: int = 1, bins: int = 10,
-                restore_output: str = "signed", **overrides) -> nn.Module:
+                restore_output: str = "signed", stage2_input: str = "restored", **overrides) -> nn.Module:
     """Build a model of ``kind`` (one of :data:`MODEL_KINDS`) and named ``size``.
 
     ``restore_output``: the output of the stage-1 network (restore, rdnet):
     :data:`RESTORE_OUTPUTS`. ``image_channels=0`` (restore only): events-only restorer.
+    ``stage2_input`` (rdnet only): :data:`STAGE2_INPUTS`.
 
     ``overrides`` replace architecture keys of the size (width, enc_depths, middle_depth,
     dec_depths). ``deblurnet_matched`` returns a :class:`DeblurNet` widened to the
@@ -291,6 +320,9 @@ def build_model(kind: str, size: str = "tiny", image_channels: int = 1, bins: in
                           f"known: {', '.join(RESTORE_OUTPUTS)}")
     if restore_output != "signed" and kind not in ("restore", "rdnet"):
         raise ConfigError("train.restore_output", f"only restore and rdnet have a stage-1 output, not {kind!r}")
+    if stage2_input not in STAGE2_INPUTS or (stage2_input != "restored" and kind != "rdnet"):
+        raise ConfigError("train.stage2_input", f"{stage2_input!r}: one of {', '.join(STAGE2_INPUTS)}, "
+                          "and only rdnet has a stage 2")
     if image_channels == 0 and kind != "restore":
         raise ConfigError("image_channels", f"only the restore network runs without images, not {kind!r}")
     if kind == "restore":
@@ -301,7 +333,8 @@ def build_model(kind: str, size: str = "tiny", image_channels: int = 1, bins: in
         return DeblurNet(image_channels, bins, use_events=False, **arch)
     if kind == "rdnet":
         return RDNet(RestoreNet(image_channels, bins, output=restore_output, **arch),
-                     DeblurNet(image_channels, bins, **arch))
+                     DeblurNet(image_channels, bins * (2 if stage2_input == "dual" else 1), **arch),
+                     stage2_input)
     if kind == "deblurnet_matched":
         with torch.device("meta"):
             target = count_parameters(build_model("rdnet", size, image_channels, bins, **overrides))

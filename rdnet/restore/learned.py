@@ -94,7 +94,7 @@ class LearnedRestorer:
         image, (H, W) or (H, W, 3), uint8 or linear float32; required when
         ``needs_frames``, ignored otherwise)."""
         import torch
-        from rdnet.nn.decision import decide_counts
+        from rdnet.nn.decision import decided_events
 
         t0_us, t1_us = int(t0_us), int(t1_us)
         if t1_us <= t0_us:
@@ -111,10 +111,7 @@ class LearnedRestorer:
                if self.net.image_channels else None)
         with torch.inference_mode():
             if split:
-                mu, logit = self.net(img, x, return_heads=True)
-                counts = decide_counts(mu[0].cpu().numpy(), torch.sigmoid(logit)[0].cpu().numpy(),
-                                       float(self.decision["threshold"]))
-                out = counts.reshape(2, self.bins, H, W)
+                out = decided_events(self.net, img, x, self.decision)[0]
             else:
                 out = self.net(img, x)[0].cpu().numpy()
         restored = voxel_events(out, t0_us, dur, mode=self.mode)
@@ -172,7 +169,10 @@ def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapp
 
 def load_restorer(checkpoint: str | Path | None, *, has_frames: bool, params: Mapping,
                   device: str = "cpu") -> LearnedRestorer:
-    """The learned restorer to use (module docstring for the search order)."""
+    """The learned restorer to use (module docstring for the search order). ``device``: cpu,
+    cuda or auto (cuda when available)."""
+    from rdnet.train.loop import resolve_device
+    device = str(resolve_device(str(device)))
     if checkpoint is not None:
         path = Path(checkpoint)
         f = _checkpoint_file(path)

@@ -172,8 +172,8 @@ def run_variant(name: str, variant: Variant, base: dict, *, data_dir: Path, work
     test_pairs, test_events = data_dir / "pairs" / "test.h5", data_dir / "events" / "test"
     rows = evaluate_rows(params, vwork / "models", test_pairs, test_events)
     from rdnet.study.rows import restoration_table
-    rest = restoration_table(section(params, "ablation"), test_pairs, test_events, vwork / "models" / "rdnet",
-                             methods=("degraded", "rdnet"), seeds=section(params, "study").seeds)
+    rest = restoration_table(section(params, "ablation"), test_pairs, test_events,
+                             {"rdnet": vwork / "models" / "rdnet"}, filters=(), seeds=section(params, "study").seeds)
     return {"sets": list(variant.sets), "note": variant.note, "own_training_data": pairs.parent != data_dir / "pairs",
             "train_samples": _n_samples(pairs), "rows": rows, "gaps": gaps(rows),
             "networks": {n: {"parameters": s["parameters"], "iterations": s["runs"][0]["iterations"],
@@ -182,6 +182,8 @@ def run_variant(name: str, variant: Variant, base: dict, *, data_dir: Path, work
             "restoration_voxel_l1": {"degraded": rest["degraded"]["voxel_l1"],
                                      "rdnet_stage1": rest["rdnet"]["voxel_l1"],
                                      "rdnet_stage1_std": rest["rdnet"]["voxel_l1_std"]},
+            "restoration_event_f1": {"degraded": (rest["degraded"].get("events") or {}).get("f1"),
+                                     "rdnet_stage1": (rest["rdnet"].get("events") or {}).get("f1")},
             "model": to_dict(section(params, "model")), "train": to_dict(section(params, "train"))}
 
 

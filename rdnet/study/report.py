@@ -128,8 +128,15 @@ def restoration_frame(restoration: dict):
     import pandas as pd
     recs = []
     for name, m in restoration.items():
-        recs.append({"events": name, "voxel L1 on responses (lower is better)": _pm(m, "voxel_l1", "{:.4f}"),
-                     "voxel PSNR on responses (dB)": _pm(m, "voxel_psnr", "{:.2f}")})
+        ev = {**(m.get("events") or {}), "seeds": m.get("seeds")}
+        rec = {"events": name, "voxel L1 on responses (lower is better)": _pm(m, "voxel_l1", "{:.4f}"),
+               "voxel PSNR on responses (dB)": _pm(m, "voxel_psnr", "{:.2f}")}
+        if any("events" in v for v in restoration.values()):      # event level (restored events)
+            rec.update({"precision": _f(ev.get("precision"), "{:.3f}"), "recall": _f(ev.get("recall"), "{:.3f}"),
+                        "F1": _pm(ev, "f1", "{:.3f}"), "count ratio": _f(ev.get("count_ratio"), "{:.2f}"),
+                        "voxel L1 (events, all voxels)": _f(ev.get("voxel_l1_all"), "{:.4f}"),
+                        "voxel L1 (events, event voxels)": _f(ev.get("voxel_l1_event"), "{:.3f}")})
+        recs.append(rec)
     return pd.DataFrame.from_records(recs)
 
 

@@ -77,31 +77,81 @@ class AblationConfig:
         return from_dict(RowConfig, self.rows[row_id], f"ablation.rows.{row_id}")
 
 
-class _StcfTransform:
-    """Voxels of the STCF-filtered raw degraded events of each sample's window."""
+class _EventFilterTransform:
+    """An event-level filter run on each raw test sequence (``events_dir/seq_*.h5``, row
+    ``sequence`` = file index), restricted to each sample's window: its signed voxels
+    (``__call__``, a ``voxel_transform``) or per-polarity counts (:meth:`counts`).
+    ``whole(events) -> events`` filters a whole sequence (STCF, BAF: their timestamp maps
+    see the history before the window); ``window(events, t0, t1, row) -> events`` filters
+    the events of one window (GEF: guided by the sample's blurry frame)."""
 
-    def __init__(self, pairs_path: Path, events_dir: Path, cfg: FilterConfig, bins: int, mode: str):
+    def __init__(self, pairs_path: Path, events_dir: Path, bins: int, mode: str, *, whole=None, window=None):
         import h5py
         with h5py.File(pairs_path, "r") as f:
             self.seq = np.asarray(f["sequence"])
             self.t0 = np.asarray(f["t0_us"])
             self.dur = np.asarray(f["duration_us"])
         self.files = sorted(Path(events_dir).glob("seq_*.h5"))
-        self.cfg, self.bins, self.mode = cfg, bins, mode
+        self.bins, self.mode, self.whole, self.window = bins, mode, whole, window
         self._cache: dict[int, object] = {}
 
     def events(self, s: int):
         if s not in self._cache:
-            from rdnet.baselines.stcf import stcf_filter
             from rdnet.events.io import read_events
             ev = read_events(self.files[s])
-            self._cache = {s: stcf_filter(ev, self.cfg.stcf_tau_us, self.cfg.stcf_k, self.cfg.stcf_radius)}
+            self._cache = {s: ev if self.whole is None else self.whole(ev)}
         return self._cache[s]
 
-    def __call__(self, voxels: np.ndarray, index: np.ndarray) -> np.ndarray:
+    def split(self, i: int) -> np.ndarray:
+        """(2, bins, H, W) ON/OFF grid of the filtered events of sample ``i``."""
         from rdnet.events.voxel import voxel_grid
-        return np.stack([voxel_grid(self.events(int(self.seq[i])), self.bins, int(self.t0[i]),
-                                    int(self.dur[i]), mode=self.mode) for i in index])
+        t0, dur = int(self.t0[i]), int(self.dur[i])
+        ev = self.events(int(self.seq[i]))
+        if self.window is not None:
+            ev = self.window(ev.select((ev.t >= t0) & (ev.t <= t0 + dur)), t0, t0 + dur, i)
+        return voxel_grid(ev, self.bins, t0, dur, mode=self.mode, polarity="split")
+
+    def counts(self, index: np.ndarray) -> np.ndarray:
+        """(n, 2, bins, H, W) int64 ON/OFF counts of the samples ``index``."""
+        return np.stack([np.rint(self.split(int(i))) for i in index]).astype(np.int64)
+
+    def __call__(self, voxels: np.ndarray, index: np.ndarray) -> np.ndarray:
+        return np.stack([(lambda g: g[0] - g[1])(self.split(int(i))) for i in index])
+
+
+def _pairs_mode(pairs_path: Path) -> tuple[int, str]:
+    import h5py
+    from rdnet.train.data import read_pairs_info
+    with h5py.File(pairs_path, "r") as f:
+        mode = str(f.attrs.get("voxel_mode", "hard"))
+    return read_pairs_info(pairs_path).bins, mode
+
+
+def event_filter(name: str, pairs_path: Path, events_dir: Path, cfg: FilterConfig,
+                 baf_dt_us: int = 10000, gef_bins: int = 5) -> _EventFilterTransform:
+    """The event-level baseline ``name`` (stcf, baf, gef) on the test events of each
+    sample's window (:class:`_EventFilterTransform`); GEF is
+    :class:`rdnet.restore.base.GefRestorer` (mask mode) guided by the sample's blurry frame."""
+    bins, mode = _pairs_mode(pairs_path)
+    if name == "stcf":
+        from rdnet.baselines.stcf import stcf_filter
+        return _EventFilterTransform(pairs_path, events_dir, bins, mode, whole=lambda ev: stcf_filter(
+            ev, cfg.stcf_tau_us, cfg.stcf_k, cfg.stcf_radius))
+    if name == "baf":
+        from rdnet.baselines.baf import baf_filter
+        return _EventFilterTransform(pairs_path, events_dir, bins, mode, whole=lambda ev: baf_filter(ev, baf_dt_us))
+    if name == "gef":
+        import h5py
+        from rdnet.config import from_dict
+        from rdnet.restore.base import GefRestorer
+        from rdnet.restore.settings import RestoreConfig
+        gef = GefRestorer(from_dict(RestoreConfig, {"gef_radius": cfg.gef_radius, "gef_eps": cfg.gef_eps,
+                                                    "gef_bins": gef_bins, "gef_mode": "mask"}, "restore"))
+        with h5py.File(pairs_path, "r") as f:
+            blurry = np.asarray(f["blurry"])
+        return _EventFilterTransform(pairs_path, events_dir, bins, mode,
+                                     window=lambda ev, t0, t1, i: gef.restore(ev, t0, t1, blurry[i]))
+    raise ConfigError("ablation.filter", f"unknown event filter {name!r}")
 
 
 class _GefTransform:
@@ -148,11 +198,7 @@ def voxel_filter(name: str | None, pairs_path: Path, events_dir: Path | None, cf
     if name == "stcf":
         if events_dir is None:
             raise ConfigError("ablation.filter", "stcf needs the raw test events (--events-dir)")
-        from rdnet.train.data import read_pairs_info
-        import h5py
-        with h5py.File(pairs_path, "r") as f:
-            mode = str(f.attrs.get("voxel_mode", "hard"))
-        return _StcfTransform(pairs_path, events_dir, cfg, read_pairs_info(pairs_path).bins, mode)
+        return event_filter("stcf", pairs_path, events_dir, cfg)
     raise ConfigError("ablation.filter", f"unknown filter {name!r}")
 
 
@@ -240,41 +286,104 @@ def evaluate_ablation_row(cfg: AblationConfig, row_id: str, pairs_path: Path,
     return out
 
 
-def restoration_table(cfg: AblationConfig, pairs_path: Path, events_dir: Path, rdnet_checkpoint: Path,
-                      methods=("degraded", "stcf", "gef", "rdnet"), seeds=(0,)) -> dict:
-    """Restoration metrics against the undegraded voxels, per method, overall and per
-    dominant degradation (threshold bias / bandwidth / noise ...). RDNet's stage 1 is
-    scored per training seed (``rdnet_checkpoint``: a network directory or a ``.pt``
-    file) and reported as the seed mean with ``<metric>_std``."""
+#: stage-1 networks scored by the restoration stage: name -> network directory (kind read
+#: from the checkpoint: a RestoreNet, or an RDNet whose fine-tuned stage 1 is scored).
+LEARNED_RESTORERS = {"rdnet": "models/rdnet", "rdnet_signed": "models/rdnet_signed", "rdnet_dual": "models/rdnet_dual",
+                     "restore_image": "models/restore_image", "restore_events": "models/restore_events",
+                     "restore_signed": "models/restore_signed"}
+#: event-level metrics reported per method (rdnet.eval.events.match_metrics).
+EVENT_KEYS = ("precision", "recall", "f1", "count_ratio", "voxel_l1_all", "voxel_l1_event", "restored",
+              "reference")
+
+
+def _json_number(v):
+    v = float(v) if not isinstance(v, (int, np.integer)) else int(v)
+    return v if not isinstance(v, float) or np.isfinite(v) else None
+
+
+def _event_entry(counts: np.ndarray, reference: np.ndarray, labels) -> dict:
+    """Pooled event metrics of (n, 2, bins, H, W) counts, overall and per label group."""
+    from rdnet.eval.events import match_metrics
+    m = match_metrics(counts, reference)
+    out = {k: _json_number(m[k]) for k in EVENT_KEYS}
+    if labels is not None:
+        groups = []
+        for g in sorted(set(labels.tolist())):
+            sel = labels == g
+            mg = match_metrics(counts[sel], reference[sel])
+            groups.append({"group": g, "n": int(sel.sum()), **{k: _json_number(mg[k]) for k in EVENT_KEYS}})
+        out["by_degradation"] = groups
+    return out
+
+
+def restoration_table(cfg: AblationConfig, pairs_path: Path, events_dir: Path,
+                      learned: dict | None = None, *, filters=("stcf", "gef", "baf", "gef_voxel"),
+                      seeds=(0,), baf_dt_us: int = 10000, gef_bins: int = 5) -> dict:
+    """Restoration metrics against the undegraded events, per method: the raw degraded
+    events (``degraded``), the event filters ``filters`` (STCF, BAF and GEF on the test
+    events of each sample's window, :func:`event_filter`; ``gef_voxel``: the study's
+    voxel-level GEF, its voxels rounded to events) and every stage-1 network of
+    ``learned`` (name -> network directory or ``.pt``: a RestoreNet, or an RDNet whose
+    fine-tuned stage 1 is scored), seed by seed (seed mean, ``<metric>_std``).
+
+    Per method: ``voxel_l1``/``voxel_psnr``/``voxel_l1_all`` of the voxels a network reads
+    (the networks' raw responses: comparable with the study's earlier numbers) and their
+    ``by_degradation`` means (:func:`rdnet.eval.metrics.dominant_degradation`); ``events``:
+    the event-level metrics of the restored *events* (the checkpoint's decision applied;
+    :func:`rdnet.eval.events.match_metrics`, pooled over the test samples) overall and
+    per dominant degradation. Event metrics need the pairs file's per-polarity voxels."""
     from rdnet.eval import metrics as M
     from rdnet.eval.predict import predict
+    from rdnet.study.config import seed_checkpoint
+    from rdnet.train.checkpoint import read_checkpoint
     import h5py
     with h5py.File(pairs_path, "r") as f:
         u = np.asarray(f["voxel_undegraded"]); d = np.asarray(f["voxel_degraded"])
         degrade = {k: np.asarray(f["degrade"][k]) for k in f["degrade"]} if "degrade" in f else {}
+        has_counts = "voxel_undegraded_on" in f
+        if has_counts:
+            cu = np.stack([np.asarray(f["voxel_undegraded_on"]), np.asarray(f["voxel_undegraded_off"])], 1)
+            cd = np.stack([np.asarray(f["voxel_degraded_on"]), np.asarray(f["voxel_degraded_off"])], 1)
+            cu, cd = np.rint(cu).astype(np.int64), np.rint(cd).astype(np.int64)
     idx = np.arange(len(u))
-    restored = {"degraded": d}
-    if "stcf" in methods:
-        restored["stcf"] = voxel_filter("stcf", pairs_path, events_dir, cfg.filters)(d, idx)
-    if "gef" in methods:
-        restored["gef"] = voxel_filter("gef", pairs_path, events_dir, cfg.filters)(d, idx)
-    if "rdnet" in methods:
-        from rdnet.study.config import seed_checkpoint
-        restored["rdnet"] = [predict("rdnet", seed_checkpoint(rdnet_checkpoint, s), pairs_path, "degraded",
-                                     batch_size=cfg.batch_size, device=cfg.device)["restored"] for s in seeds]
     labels = M.dominant_degradation(degrade) if degrade else None
+
+    def score(signed, counts) -> dict:
+        """One run's entry (scored at once: the restored arrays are not kept)."""
+        per = M.restoration_per_sample(signed, u, d)
+        entry = {k: float(np.mean(v)) for k, v in per.items() if k != "mask_fraction"}
+        if labels is not None:
+            entry["by_degradation"] = M.group_means({k: per[k] for k in ("voxel_l1", "voxel_psnr")}, labels)
+        if counts is not None:
+            entry["events"] = _event_entry(counts, cu, labels)
+        return entry
+
+    # name -> entries, one per seed for the learned ones
+    entries: dict[str, list] = {"degraded": [score(d, cd if has_counts else None)]}
+    for name in filters:
+        if name == "gef_voxel":
+            from rdnet.nn.decision import polarity_grid, split_signed
+            v = voxel_filter("gef", pairs_path, events_dir, cfg.filters)(d, idx)
+            entries[name] = [score(v, polarity_grid(split_signed(np.rint(v)).astype(np.int64)))]
+        else:
+            c = event_filter(name, pairs_path, events_dir, cfg.filters, baf_dt_us, gef_bins).counts(idx)
+            entries[name] = [score((c[:, 0] - c[:, 1]).astype(np.float32), c)]
+    for name, ck in (learned or {}).items():
+        entries[name] = []
+        for s in seeds:
+            path = seed_checkpoint(ck, s)
+            kind = "rdnet" if read_checkpoint(path)["model_kind"] == "rdnet" else "restore"
+            pr = predict(kind, path, pairs_path, "degraded", batch_size=cfg.batch_size, device=cfg.device,
+                         events_out=has_counts)
+            entries[name].append(score(pr["restored"], pr.get("restored_counts")))
+            del pr
     out = {}
-    for name, r in restored.items():
-        entries = []
-        for one in (r if isinstance(r, list) else [r]):
-            per = M.restoration_per_sample(one, u, d)
-            entry = {k: float(np.mean(v)) for k, v in per.items() if k != "mask_fraction"}
-            if labels is not None:
-                entry["by_degradation"] = M.group_means({k: per[k] for k in ("voxel_l1", "voxel_psnr")}, labels)
-            entries.append(entry)
-        out[name] = mean_over_seeds(entries)
-        if isinstance(r, list):
+    for name, runs in entries.items():
+        out[name] = mean_over_seeds(runs)
+        if name in (learned or {}):
             out[name]["seeds"] = list(seeds)
             for key in ("voxel_l1", "voxel_psnr"):
-                out[name][f"{key}_std"] = seed_spread([e[key] for e in entries])
+                out[name][f"{key}_std"] = seed_spread([e[key] for e in runs])
+            if "events" in runs[0]:
+                out[name]["events"]["f1_std"] = seed_spread([e["events"]["f1"] for e in runs])
     return out

@@ -22,16 +22,21 @@ log = logging.getLogger(__name__)
 
 def stress_test(params: dict, scenes: Path, interp: Path, work: Path, *, progress: bool = True) -> dict:
     """``{"scales": [...], "rows": {row: [{"scale", "psnr", "psnr_std", "psnr_seeds", "ssim"}]},
-    "restoration": {"degraded"|"rdnet": [{"scale", "voxel_l1", ...}]}}``; the simulated test
-    sets go to ``work/scale_<s>/``."""
+    "restoration": {method: [{"scale", "voxel_l1", ..., "events_f1", "events_precision", ...}]}}``
+    (methods of :func:`rdnet.study.rows.restoration_table`: raw, the event filters and the
+    study's stage-1 networks present under ``models/``); the simulated test sets go to
+    ``work/scale_<s>/``."""
     from tqdm import tqdm
     from rdnet.study.data import make_pairs, simulate_sequences
-    from rdnet.study.rows import evaluate_ablation_row, restoration_table
+    from rdnet.study.rows import LEARNED_RESTORERS, evaluate_ablation_row, restoration_table
     study = section(params, "study")
     ablation = section(params, "ablation")
     rows = list(study.stress_rows)
     for rid in rows:
         ablation.row(rid)                               # ConfigError for an unknown row
+    restore = section(params, "restore")
+    # the stage-1 networks of the study that exist (a partial study scores what it has)
+    learned = {k: Path(v) for k, v in LEARNED_RESTORERS.items() if Path(v).exists()}
     out = {"scales": list(study.stress_scales), "rows": {r: [] for r in rows}, "restoration": {}}
     for s in tqdm(study.stress_scales, desc="stress", disable=not progress or None):
         d = Path(work) / f"scale_{s:g}"
@@ -42,13 +47,12 @@ def stress_test(params: dict, scenes: Path, interp: Path, work: Path, *, progres
             r = evaluate_ablation_row(ablation, rid, pairs, d / "events" / "test", seeds=study.seeds)
             out["rows"][rid].append({"scale": s, **{k: r[k] for k in ("psnr", "psnr_std", "ssim") if k in r},
                                      "psnr_seeds": r.get("psnr_seeds", [])})
-        rdnet_ck = ablation.row("rdnet").checkpoint if "rdnet" in ablation.rows else None
-        methods = ("degraded", "rdnet") if rdnet_ck else ("degraded",)
-        rest = restoration_table(ablation, pairs, d / "events" / "test", rdnet_ck, methods=methods,
-                                 seeds=study.seeds)
+        rest = restoration_table(ablation, pairs, d / "events" / "test", learned, seeds=study.seeds,
+                                 baf_dt_us=restore.baf_dt_us, gef_bins=restore.gef_bins)
         for name, m in rest.items():
+            ev = {f"events_{k}": v for k, v in m.get("events", {}).items() if isinstance(v, (int, float))}
             out["restoration"].setdefault(name, []).append(
-                {"scale": s, **{k: v for k, v in m.items() if isinstance(v, (int, float))}})
+                {"scale": s, **{k: v for k, v in m.items() if isinstance(v, (int, float))}, **ev})
         log.info("stress scale %g: %s", s, {r: round(v[-1]["psnr"], 2) for r, v in out["rows"].items()})
     return out
 

@@ -40,8 +40,9 @@ def forward_flops(net, crop: int, image_channels: int, bins: int) -> float:
     three forward passes (forward + backward); for RDNet the forward runs both stages."""
     import torch
     from torch.utils.flop_counter import FlopCounterMode
-    image = torch.zeros(1, image_channels, crop, crop)
-    voxel = torch.zeros(1, bins, crop, crop)
+    image = torch.zeros(1, image_channels, crop, crop) if image_channels else None
+    stage1 = getattr(net, "restore", net)            # a count-output stage 1 reads 2 x bins channels
+    voxel = torch.zeros(1, getattr(stage1, "in_channels", bins), crop, crop)
     counter = FlopCounterMode(display=False)
     with torch.no_grad(), counter:
         if getattr(net, "use_events", True):

@@ -37,6 +37,9 @@ class TrainConfig:
     ``val_sequences``: the last sequences of the training file held out from stage-1
     training (tasks restore, restore_events) to fit the voxel -> event decision
     (:mod:`rdnet.nn.decision`); needed by ``counts`` (>= 1), 0 = train on every row.
+    ``stage2_input`` (task rdnet): stage 2 reads the ``restored`` voxel (the paper) or
+    ``dual``: the restored and the raw voxels concatenated (it cannot lose what the raw
+    events hold; :class:`rdnet.nn.models.RDNet`).
     ``finetune_restore``: stage 2 also updates the stage-1 weights, at
     ``lr * restore_lr_scale``; false freezes them.
     ``seed``: model init, data order, crops; ``device``: cpu, cuda or auto (cuda when
@@ -62,6 +65,7 @@ class TrainConfig:
     restore_output: Literal["signed_masked", "counts"] = "signed_masked"
     occupancy_weight: float = 1.0
     val_sequences: int = 0
+    stage2_input: Literal["restored", "dual"] = "restored"
     finetune_restore: bool = True
     restore_lr_scale: float = 1.0
     seed: int = 0
@@ -96,6 +100,8 @@ class TrainConfig:
         if self.restore_output == "counts" and self.val_sequences < 1:
             raise ConfigError("train.val_sequences", "restore_output counts fits its decision on held-out "
                               "sequences: needs >= 1")
+        if self.stage2_input not in ("restored", "dual"):
+            raise ConfigError("train.stage2_input", f"must be restored or dual, got {self.stage2_input!r}")
         if self.device not in ("cpu", "cuda", "auto"):
             raise ConfigError("train.device", f"must be cpu, cuda or auto, got {self.device!r}")
 

@@ -21,8 +21,8 @@ Tasks (:data:`TASKS`) and their objectives (RDNet paper, Sec. 3.4):
   ``L_d + beta * |F(E_r) - F(E_u)|_1`` (Eq. 9; F the deblurring network's event
   encoder) plus ``stage2_alpha`` times the masked voxel term (0 by default). With a
   counts stage 1, stage 1 reads per-polarity counts and stage 2 the signed expected
-  counts (:class:`~rdnet.nn.models.RDNet`); model.pt carries the stage-1 checkpoint's
-  decision.
+  counts (:class:`~rdnet.nn.models.RDNet`); model.pt carries the decision refitted on the
+  stage-1 checkpoint's validation rows when stage 1 was fine-tuned (else its decision).
 
 Optimiser: Adam, cosine annealing from ``lr`` to ``lr_min`` over ``iterations`` steps
 (``CosineAnnealingLR(T_max=iterations, eta_min=lr_min)``, paper Sec. 4.1).
@@ -80,10 +80,11 @@ def resolve_device(name: str, info: DistInfo | None = None) -> torch.device:
 
 
 def model_args(task: str, model_cfg: ModelConfig, image_channels: int, bins: int,
-               restore_output: str = "signed") -> dict:
+               restore_output: str = "signed", stage2_input: str = "restored") -> dict:
     """Keyword arguments of ``build_model`` for ``task`` (stored in the checkpoint).
     ``restore_output`` (RestoreNet output, signed or counts) applies to the stage-1
-    tasks and rdnet; it is stored only when not signed (old checkpoints stay equal)."""
+    tasks and rdnet, ``stage2_input`` (restored or dual) to rdnet; each is stored only
+    when not the default (old checkpoints stay equal)."""
     if task not in TASKS:
         raise ConfigError("task", f"unknown task {task!r}; known: {', '.join(TASKS)}")
     args = {"kind": TASKS[task], "size": model_cfg.size,
@@ -91,6 +92,8 @@ def model_args(task: str, model_cfg: ModelConfig, image_channels: int, bins: int
             "bins": int(bins), **model_cfg.overrides()}
     if restore_output != "signed" and task in RESTORE_TASKS + ("rdnet",):
         args["restore_output"] = restore_output
+    if stage2_input != "restored" and task == "rdnet":
+        args["stage2_input"] = stage2_input
     return args
 
 
@@ -128,10 +131,13 @@ def compute_loss(task: str, model: nn.Module, batch: Mapping[str, torch.Tensor],
     elif task == "image_only":
         pred = model(blurry, None)
     elif task == "rdnet":
-        restored, pred = model(blurry, batch["counts_degraded" if counts else "voxel_degraded"])
+        inp = batch["counts_degraded" if counts else "voxel_degraded"]
+        restored, pred = model(blurry, inp)
         ld = deblur_loss(pred, batch["sharp"])
+        # F of Eq. 9 is stage 2's event encoder on what stage 2 reads (with the raw voxel when dual)
+        features = lambda v: net.deblur.event_features(net.stage2_events(v, inp))  # noqa: E731
         lr = restoration_loss(restored, batch["voxel_undegraded"], batch["voxel_degraded"],
-                              alpha=cfg.stage2_alpha, feature_fn=net.deblur.event_features,
+                              alpha=cfg.stage2_alpha, feature_fn=features,
                               beta=cfg.beta, empty_weight=cfg.empty_weight)
         loss = ld + lr
         return loss, {"loss": loss.detach(), "loss_deblur": ld.detach(), "loss_restore": lr.detach(),
@@ -211,8 +217,9 @@ def fit_decision(net: nn.Module, train_path: str | Path, val_rows, device: torch
     counts output -- the occupancy threshold fitted on the validation rows so that the
     restored event count matches the undegraded one (:func:`rdnet.nn.decision.fit_threshold`);
     signed output -- the paper's rounding. Both with the validation event metrics
-    (:func:`rdnet.nn.decision.match_counts`) of the decided events."""
-    from rdnet.nn.decision import decide_counts, decision_dict, fit_threshold, match_counts, split_signed
+    (:func:`rdnet.eval.events.match_metrics`) of the decided events."""
+    from rdnet.eval.events import match_metrics
+    from rdnet.nn.decision import decide_counts, decision_dict, fit_threshold, polarity_grid, split_signed
     if len(val_rows) == 0:
         if net.output == "counts":
             raise ConfigError("train.val_sequences", "the counts decision needs validation rows")
@@ -227,11 +234,13 @@ def fit_decision(net: nn.Module, train_path: str | Path, val_rows, device: torch
     if net.output == "counts":
         threshold = fit_threshold(out, prob, int(target.sum()))
         restored = decide_counts(out, prob, threshold)
-        metrics = match_counts(restored, target)
+        metrics = match_metrics(polarity_grid(restored), polarity_grid(np.rint(target).astype(np.int64)))
     else:
         threshold = None
-        metrics = match_counts(split_signed(np.rint(out)), split_signed(target))
+        metrics = match_metrics(polarity_grid(split_signed(np.rint(out)).astype(np.int64)),
+                                polarity_grid(split_signed(np.rint(target)).astype(np.int64)))
     log.info("decision: threshold %s, validation %s", threshold, {k: round(v, 4) for k, v in metrics.items()})
+    metrics = {k: (v if np.isfinite(v) else None) for k, v in metrics.items()}   # JSON-able card
     return decision_dict(threshold, **info, val_metrics=metrics)
 
 
@@ -251,7 +260,7 @@ def _init_from(task: str, net: nn.Module, path: Path, args: Mapping) -> None:
     ckpt_mod.check_compatible(path, ck, bins=args["bins"], image_channels=args["image_channels"])
     if task == "rdnet" and ck["model_kind"] == "restore":
         stored = {k: v for k, v in ck["model_args"].items() if k != "kind"}
-        wanted = {k: v for k, v in ckpt_mod._plain(args).items() if k != "kind"}
+        wanted = {k: v for k, v in ckpt_mod._plain(args).items() if k not in ("kind", "stage2_input")}
         if stored != wanted:
             raise FormatError(path, "model_args", f"stage-1 network {stored} differs from this "
                               f"run's stage 1 {wanted}")
@@ -271,11 +280,23 @@ def _init_deblur(task: str, net: nn.Module, path: Path, args: Mapping) -> None:
     if ck["model_kind"] != "deblur":
         raise FormatError(path, "model_kind", f"holds a {ck['model_kind']!r} model; stage 2 starts from a 'deblur' one")
     ckpt_mod.check_compatible(path, ck, bins=args["bins"], image_channels=args["image_channels"])
-    stored = {k: v for k, v in ck["model_args"].items() if k != "kind"}
-    wanted = {k: v for k, v in ckpt_mod._plain(args).items() if k != "kind"}
+    stage1_only = ("kind", "restore_output", "stage2_input")       # not DeblurNet arguments
+    stored = {k: v for k, v in ck["model_args"].items() if k not in stage1_only}
+    wanted = {k: v for k, v in ckpt_mod._plain(args).items() if k not in stage1_only}
     if stored != wanted:
         raise FormatError(path, "model_args", f"DeblurNet {stored} differs from this run's stage 2 {wanted}")
-    ckpt_mod.load_state(path, net.deblur, ck["state_dict"])
+    state = dict(ck["state_dict"])
+    if args.get("stage2_input") == "dual":
+        # the event input layers read 2 x bins channels: the restored half starts from the
+        # DeblurNet's weights, the raw half from zero (the start is the restored-only RDNet)
+        own = net.deblur.state_dict()
+        for k, w in state.items():
+            if k in own and own[k].ndim == w.ndim and own[k].shape != w.shape \
+                    and own[k].shape[1] == 2 * w.shape[1] and own[k].shape[0] == w.shape[0]:
+                grown = torch.zeros_like(own[k])
+                grown[:, :w.shape[1]] = w
+                state[k] = grown
+    ckpt_mod.load_state(path, net.deblur, state)
     log.info("initialised stage 2 of rdnet from %s (step %s)", path, ck.get("step"))
 
 
@@ -352,7 +373,7 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
     if counts and not data.info.has_counts:
         raise FormatError(Path(train_path), "voxel_degraded_on", "train.restore_output counts needs the "
                           "per-polarity voxels (pairs file written before they existed: rerun the blur step)")
-    args = model_args(task, model_cfg, data.info.channels, data.info.bins, cfg.model_output)
+    args = model_args(task, model_cfg, data.info.channels, data.info.bins, cfg.model_output, cfg.stage2_input)
     config = to_dict(cfg)
     extra = {"events": events, "train_path": str(Path(train_path)),
              "init_checkpoint": None if init_checkpoint is None else str(init_checkpoint),
@@ -476,7 +497,14 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
         extra["decision"] = fit_decision(net, train_path, val_rows, device,
                                          image=task != "restore_events") if main else None
     elif task == "rdnet" and init_checkpoint is not None:
-        extra["decision"] = ckpt_mod.read_checkpoint(init_checkpoint).get("extra", {}).get("decision")
+        init_extra = ckpt_mod.read_checkpoint(init_checkpoint).get("extra", {})
+        extra["decision"] = init_extra.get("decision")
+        val = init_extra.get("val_rows") or []
+        if counts and cfg.finetune_restore and len(val) and main:
+            # stage 2 fine-tuned stage 1: its occupancy moved, so the threshold is refitted on
+            # stage 1's held-out rows (stage 2 trained on them: a count match, not a test score)
+            extra["decision"] = {**fit_decision(net.restore, train_path, np.asarray(val, np.int64), device),
+                                 "refit": "after stage 2 fine-tuning, on the stage-1 validation rows"}
     save(final_path, step, full=False)
     if main and last_path.exists():
         last_path.unlink()

@@ -3,7 +3,7 @@ once registered as a CLI command; :func:`register` / :func:`run` follow the CLI'
 subcommand protocol).
 
     python -m rdnet.train.run --task restore --params params.yaml \\
-        --train data/pairs/train.h5 --out models/restore
+        --train data/pairs/train.h5 --out models/restore_image
     torchrun --nproc_per_node=2 -m rdnet.train.run --task deblur --events degraded ...
 
 Reads the ``train`` and ``model`` sections of params.yaml (``--set train.iterations=10``

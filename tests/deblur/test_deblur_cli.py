@@ -20,9 +20,12 @@ from rdnet.train.checkpoint import make_checkpoint, save_checkpoint
 W, H, N, PERIOD_US = 32, 24, 6, 40_000
 
 
-def _checkpoint(path, kind="rdnet", bins=4, width=4, voxel=True, channels=1):
+def _checkpoint(path, kind="rdnet", bins=4, width=4, voxel=True, channels=1, counts=False):
     args = {"kind": kind, "size": "tiny", "image_channels": channels, "bins": bins, "width": width}
     extra = {"voxel": {"bins": bins, "mode": "hard", "normalize": None}} if voxel else {}
+    if counts:                    # count-output stage 1 with its fitted decision
+        args["restore_output"] = "counts"
+        extra["decision"] = {"rule": "occupancy_threshold", "threshold": 0.5}
     return save_checkpoint(path, make_checkpoint(build_model(**args), kind, args, extra=extra, with_rng=False))
 
 
@@ -96,6 +99,28 @@ def test_outputs_and_identity_network(capsys, tmp_path, rng, exposure_us):
     pngs = sorted(p.name for p in (data / "deblurred").iterdir())
     assert pngs == [f"{k:05d}.png" for k in range(N)]
     assert not list(tmp_path.glob(".*.tmp"))                     # no staging folders left
+
+
+@pytest.mark.parametrize("exposure_us", [0, 10_000])
+def test_count_output_stage1_keeps_every_raw_event(capsys, tmp_path, rng, exposure_us):
+    """A fresh count-output stage 1 is the identity on each polarity (occupancy logit
+    +gain where there are events): with its decision every raw event of the interval
+    windows comes back -- ON and OFF events of one voxel no longer cancel -- and stage 2
+    (the identity) reads ON - OFF."""
+    rec = _recording(rng, exposure_us)
+    save(tmp_path / "rec.h5", rec)
+    ck = _checkpoint(tmp_path / "rdnet.pt", counts=True)
+    out, data = tmp_path / "out", tmp_path / "data"
+    rc, _, err = _run(capsys, ["deblur", str(tmp_path / "rec.h5"), str(out), "--checkpoint", str(ck),
+                               "--data-out", str(data), "--params", str(_params(tmp_path)), "--no-progress"])
+    assert rc == 0, err
+    back = load(data / "restored.h5")
+    t = rec.frames.t_us
+    inside = (rec.events.t >= t[0] - PERIOD_US // 2) & (rec.events.t <= t[-1] + PERIOD_US // 2)
+    assert len(back.events) == int(inside.sum())
+    assert int(back.events.p.sum()) == int(rec.events.p[inside].sum())      # polarities kept
+    res = json.loads((out / "consistency.json").read_text())
+    assert res["deblur"]["mean_abs_change"] == 0.0
 
 
 def test_defaults_to_one_output_folder_and_keeps_other_files(capsys, tmp_path, rng):

@@ -7,7 +7,7 @@ import torch
 from rdnet.errors import ConfigError, ValidationError
 from rdnet.events import Events
 from rdnet.events.voxel import voxel_events, voxel_grid
-from rdnet.nn.decision import decide_counts, fit_threshold, match_counts, read_decision, split_signed
+from rdnet.nn.decision import decide_counts, fit_threshold, polarity_grid, read_decision, split_signed
 from rdnet.nn.losses import count_loss_terms, restoration_loss
 from rdnet.nn.models import RDNet, DeblurNet, RestoreNet, build_model
 
@@ -85,9 +85,11 @@ def test_fit_threshold_known_answers_and_decision_checks():
     assert fit_threshold(mu, p, 3) == 0.9          # 4 would overshoot: keep only the 0.9 voxel
     assert fit_threshold(mu, p, 0) > 0.9
     assert decide_counts(mu, p, 0.8).tolist() == [1, 2, 1, 0]
-    m = match_counts(np.array([2, 0, 1]), np.array([1, 1, 1]))
-    assert m["precision"] == pytest.approx(2 / 3) and m["recall"] == pytest.approx(2 / 3)
-    assert m["count_ratio"] == 1.0
+    flat = np.arange(2 * 6 * 2 * 2).reshape(2, 6, 2, 2)        # (N, 2 * bins, H, W), bins 3
+    g = polarity_grid(flat)
+    assert g.shape == (2, 2, 3, 2, 2) and g[1, 1, 0, 0, 1] == flat[1, 3, 0, 1]    # OFF bin 0 = channel bins
+    with pytest.raises(ValidationError, match="counts"):
+        polarity_grid(np.zeros((1, 5, 2, 2)))
     np.testing.assert_array_equal(split_signed(np.array([[[2.0]], [[-1.0]]])), [[[2.0]], [[0.0]], [[0.0]], [[1.0]]])
     with pytest.raises(ValidationError, match="decision"):
         read_decision(None, "counts")

@@ -103,3 +103,10 @@ def test_export_writes_model_and_card_and_package_fallback_reads_it(tmp_path, mo
     (tmp_path / "models" / "restore_events").mkdir(parents=True)
     _save(tmp_path / "models" / "restore_events" / "model.pt")
     assert load_restorer(None, has_frames=False, params=PARAMS).source.startswith("study model")
+
+
+def test_load_restorer_resolves_device_auto(tmp_path):
+    """restore.device defaults to 'auto': it becomes a real torch device, and the restorer runs."""
+    r = load_restorer(_save(tmp_path / "m.pt"), has_frames=False, params=PARAMS, device="auto")
+    assert str(r.device) == ("cuda:0" if torch.cuda.is_available() else "cpu")
+    assert len(r.restore(_events(), 0, 30000, None)) > 0

@@ -23,7 +23,7 @@ pytestmark = pytest.mark.skipif(not DVC.exists(), reason="dvc not installed besi
 def _tiny_params(p: dict) -> dict:
     p["scenes"].update(n_train=2, n_test=1, height=24, width=24, n_frames=30, n_objects=1)
     p["interpolate"].update(max_upsample=2)
-    p["train"].update(iterations=3, batch_size=2, crop=16, log_every=1, ckpt_every=2)
+    p["train"].update(iterations=3, batch_size=2, crop=16, log_every=1, ckpt_every=2, val_sequences=1)
     p["ablation"]["level_bins"] = 2
     p["study"].update(seeds=[0, 1], parallel=2,      # two seeds, trained in two processes
                       stress_scales=[0.5, 2.0], stress_rows=["degraded_train", "restored"])
@@ -70,8 +70,10 @@ def test_dvc_repro_and_exp_run(tmp_path):
         factor = params["networks"][net].get("iterations_factor", 1)
         assert all(r["iterations"] == round(3 * factor) for r in summary["runs"])
     rest = json.loads((repo / "metrics" / "restoration.json").read_text())
-    assert set(rest) == {"degraded", "stcf", "gef", "rdnet"}
-    assert all("voxel_l1" in v for v in rest.values())
+    assert set(rest) == {"degraded", "stcf", "gef", "baf", "gef_voxel", "rdnet", "rdnet_signed", "rdnet_dual",
+                         "restore_image", "restore_events", "restore_signed"}
+    assert all("voxel_l1" in v and 0 <= v["events"]["f1"] <= 1 for v in rest.values())
+    assert rest["degraded"]["events"]["reference"] == rest["rdnet"]["events"]["reference"] > 0
     assert (repo / "results" / "ablation.md").read_text().count("| `") == len(rows)
     bars = json.loads((repo / "results" / "plots" / "psnr_rows.json").read_text())
     assert [b["row"] for b in bars] == list(rows)
@@ -94,7 +96,8 @@ def test_dvc_repro_and_exp_run(tmp_path):
     _run([str(DVC), "repro", "-f", "-s", "train_restore"], repo, env)
     status = _run([str(DVC), "status", "train_restore", "train_deblur", "evaluate@rdnet", "stress"], repo, env)
     assert "up to date" in status, status
-    assert json.loads((repo / "metrics" / "train" / "restore.json").read_text())["runs"][0]["wall_s"] > 0
+    assert json.loads((repo / "metrics" / "train" / "restore_image.json").read_text())["runs"][0]["wall_s"] > 0
+    assert "events_f1" in stress["restoration"]["restore_events"][0]
 
     _run(["git", "add", "-A"], repo, env)
     _run(["git", "commit", "-qm", "base"], repo, env)

@@ -20,9 +20,9 @@ def study(tmp_path_factory):
     """params.yaml at minute sizes and its study data (data/pairs, data/events) as
     `dvc repro blur` makes them."""
     p = yaml.safe_load((ROOT / "params.yaml").read_text())
-    p["scenes"].update(n_train=1, n_test=1, height=24, width=24, n_frames=30, n_objects=1)
+    p["scenes"].update(n_train=2, n_test=1, height=24, width=24, n_frames=30, n_objects=1)
     p["interpolate"].update(max_upsample=2)
-    p["train"].update(iterations=2, batch_size=2, crop=16, log_every=1, dvclive=False)
+    p["train"].update(iterations=2, batch_size=2, crop=16, log_every=1, dvclive=False, val_sequences=1)
     p["ablation"]["level_bins"] = 2
     p["study"].update(seeds=[0, 1], parallel=1)
     params = load_params(None, base=p)
@@ -65,7 +65,7 @@ def test_training_data_guard(study, tmp_path):
     with pytest.raises(ConfigError, match="test set"):
         regimes.train_pairs(params, harder, d, tmp_path / "c")
     # more training scenes: new training pairs, the same test set
-    more = regimes.variant_params(params, regimes.Variant(("scenes.n_train=2",)))
+    more = regimes.variant_params(params, regimes.Variant(("scenes.n_train=3",)))
     pairs = regimes.train_pairs(params, more, d, tmp_path / "d")
     assert pairs == tmp_path / "d" / "data" / "pairs" / "train.h5"
     assert regimes._n_samples(pairs) > regimes._n_samples(same)

@@ -65,8 +65,14 @@ def test_signed_masked_option_events_only_and_rdnet_on_counts(noisy, tmp_path):
     assert ck["model_args"]["image_channels"] == 0 and ck["extra"]["decision"]["threshold"] > 0
     r = train("restore", COUNTS, TINY, noisy, tmp_path / "c", progress=False)
     rd = train("rdnet", COUNTS, TINY, noisy, tmp_path / "rd", init_checkpoint=r, progress=False)
-    ck = read_checkpoint(rd)
-    assert ck["extra"]["decision"] == read_checkpoint(r)["extra"]["decision"]
+    ck = read_checkpoint(rd)                   # stage 1 fine-tuned: its threshold refitted on its val rows
+    d, d1 = ck["extra"]["decision"], read_checkpoint(r)["extra"]["decision"]
+    assert d["rule"] == d1["rule"] and d["val_rows"] == d1["val_rows"] and "refit" in d
+    assert d["val_metrics"]["count_ratio"] == pytest.approx(1.0, abs=0.05)
+    import dataclasses
+    frozen = train("rdnet", dataclasses.replace(COUNTS, finetune_restore=False), TINY, noisy, tmp_path / "rf",
+                   init_checkpoint=r, progress=False)
+    assert read_checkpoint(frozen)["extra"]["decision"] == d1            # stage 1 unchanged: kept
     with pytest.raises(FormatError, match="restore_output"):   # a signed stage 1 for a counts RDNet
         train("rdnet", COUNTS, TINY, noisy, tmp_path / "rd2", init_checkpoint=signed, progress=False)
 
@@ -82,3 +88,34 @@ def test_counts_needs_per_polarity_voxels_and_validation(tmp_path):
         TrainConfig(restore_output="counts", val_sequences=0)
     with pytest.raises(ConfigError, match="restore_output"):
         TrainConfig(restore_output="signed")
+
+
+def test_dual_stage2_starts_as_the_restored_only_rdnet_and_trains(noisy, tmp_path):
+    """stage2_input dual: DeblurNet reads restored + raw voxels; initialised from a
+    DeblurNet, the raw half of its input layers is zero, so it starts as the
+    restored-only RDNet with the same weights; it trains, and evaluates like any RDNet."""
+    import torch
+    from rdnet.eval.predict import predict
+    from rdnet.nn.models import build_model
+    from rdnet.train.loop import _init_deblur, model_args
+    deblur = train("deblur", TrainConfig(**CFG), TINY, noisy, tmp_path / "d", progress=False)
+    image = train("restore", COUNTS, TINY, noisy, tmp_path / "r", progress=False)
+    dual_cfg = TrainConfig(**CFG, restore_output="counts", val_sequences=2, stage2_input="dual")
+    args = model_args("rdnet", TINY, 1, 3, "counts", "dual")
+    assert args["stage2_input"] == "dual"
+    dual = build_model(**args)
+    plain = build_model(**model_args("rdnet", TINY, 1, 3, "counts"))
+    _init_deblur("rdnet", dual, deblur, args)
+    _init_deblur("rdnet", plain, deblur, model_args("rdnet", TINY, 1, 3, "counts"))
+    dual.restore.load_state_dict(plain.restore.state_dict())
+    g = torch.Generator().manual_seed(0)
+    img, x = torch.rand(2, 1, 24, 24, generator=g), torch.randint(0, 3, (2, 6, 24, 24), generator=g).float()
+    with torch.no_grad():
+        torch.testing.assert_close(dual(img, x)[1], plain(img, x)[1])
+    path = train("rdnet", dual_cfg, TINY, noisy, tmp_path / "dual", init_checkpoint=image, init_deblur=deblur,
+                 progress=False)
+    ck = read_checkpoint(path)
+    assert ck["model_args"]["stage2_input"] == "dual" and ck["extra"]["decision"]["rule"] == "occupancy_threshold"
+    assert "stage 2" in ck["extra"]["decision"]["refit"]          # refitted after fine-tuning stage 1
+    p = predict("rdnet", path, noisy, device="cpu")
+    assert p["pred"].shape == (10, 1, 24, 24) and np.isfinite(p["pred"]).all()
