@@ -337,6 +337,36 @@ def _dis(preset: str, finest_scale: int | None = None):
     return entry[0]
 
 
+_FLOW_POOL: tuple[int, "object"] | None = None
+_FLOW_POOL_LOCK = threading.Lock()
+
+
+def _flow_pool():
+    """Threads for the backward flow of a pair, computed while the calling thread computes
+    the forward one (OpenCV's DIS runs on one core and releases the GIL: ~7 ms each at
+    346 x 260, medium). Each worker has its own reused DIS instance (:func:`_dis`), so the
+    flows are the same bit for bit. Made again in a forked child (the parent's threads do
+    not exist there)."""
+    global _FLOW_POOL
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+    with _FLOW_POOL_LOCK:
+        if _FLOW_POOL is None or _FLOW_POOL[0] != os.getpid():
+            workers = max(1, min(4, os.cpu_count() or 1))
+            _FLOW_POOL = (os.getpid(), ThreadPoolExecutor(workers, thread_name_prefix="rdnet-flow"))
+        return _FLOW_POOL[1]
+
+
+def _flows_both_ways(u0: np.ndarray, u1: np.ndarray, cfg: InterpolateConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``(flow u0 -> u1, flow u1 -> u0)`` of encoded frames, the second in a pool thread."""
+    back = _flow_pool().submit(_flow_of_u8, u1, u0, cfg)
+    try:
+        f01 = _flow_of_u8(u0, u1, cfg)
+    finally:
+        f10 = back.result()
+    return f01, f10
+
+
 def optical_flow(a: np.ndarray, b: np.ndarray, cfg: InterpolateConfig) -> np.ndarray:
     """(H, W, 2) float32 flow from luminance ``a`` to ``b`` (a(x) ~ b(x + F(x))); the
     frames must have both sides >= :data:`MIN_FLOW_SIDE` (ValidationError otherwise)."""
@@ -414,8 +444,7 @@ class PairInterpolator:
             y0, y1 = luminance(self.f0), luminance(self.f1)
             _check_flow_size(y0.shape)
             u0, u1 = _flow_u8(y0), _flow_u8(y1)   # encoded once for both directions
-            f01 = _flow_of_u8(u0, u1, self.cfg)
-            f10 = _flow_of_u8(u1, u0, self.cfg)
+            f01, f10 = _flows_both_ways(u0, u1, self.cfg)   # in parallel
             gx, gy = _grid(*y0.shape)
             if self.cfg.occlusion:
                 o0, o1 = _occluded(f01, f10, gx, gy), _occluded(f10, f01, gx, gy)
@@ -548,8 +577,8 @@ def fill_log(chain: np.ndarray, t_us: np.ndarray, log_eps: float, bound: float
 
 
 def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = InterpolateConfig(),
-             log_eps: float = 0.01, *, stats: UpsampleStats | None = None, warn: bool = True
-             ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+             log_eps: float = 0.01, *, stats: UpsampleStats | None = None, warn: bool = True,
+             with_log: bool = False) -> Iterator[tuple]:
     """Stream the adaptively upsampled sequence pair by pair.
 
     ``images``: (N, H, W) or (N, H, W, 3) float32 linear; ``t_us``: (N,) int64 strictly
@@ -561,7 +590,10 @@ def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = Inte
     them. ``cfg.log_eps`` overrides ``log_eps`` (the sensor's) when set. Pass an
     :class:`UpsampleStats` to collect counts and the achieved log steps; a warning is
     logged when the bound is not met (``warn``; :func:`warn_if_over` for callers that
-    stream many calls).
+    stream many calls). ``with_log``: yield ``(images_chunk, t_chunk, log_chunk)`` where
+    ``log_chunk`` is ``log(images_chunk + eps)`` (float32, what the sensor computes from
+    the frames) when it was computed anyway for the statistics (grey frames, nothing
+    inserted), else None.
     """
     images = np.asarray(images)
     t_us = np.asarray(t_us)
@@ -583,14 +615,16 @@ def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = Inte
     here = UpsampleStats()
     sts = [here] if stats is None else [here, stats]
     if n == 1:
-        yield _as_float(images[:1]), t_us[:1].copy()
+        one = (_as_float(images[:1]), t_us[:1].copy())
+        yield one + (None,) if with_log else one
         return
     color = images.ndim == 4
     quantile = 1.0 if cfg.fill_log else cfg.pixel_quantile
     if not cfg.fill_log and (cfg.method == "none" or cfg.max_upsample <= 1):
         # nothing can be inserted: the frames as given, in one chunk; the steps (for the
         # stats and the warning only) measured on the whole sequence at once
-        yield _unchanged(images, t_us, eps, bound, quantile, color, sts)
+        ims, ts, lg = _unchanged(images, t_us, eps, bound, quantile, color, sts, keep_log=with_log)
+        yield (ims, ts, lg) if with_log else (ims, ts)
         if warn:
             warn_if_over(here, cfg)
         return
@@ -628,29 +662,34 @@ def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = Inte
         for st in sts:
             st._record(steps, bound, crit, chain.shape[0] - 2, filled)
         last = i == n - 2
-        yield (chain if last else chain[:-1]), (times if last else times[:-1])
+        out = (chain if last else chain[:-1]), (times if last else times[:-1])
+        yield out + (None,) if with_log else out
     if warn:
         warn_if_over(here, cfg)
 
 
 def _unchanged(images: np.ndarray, t_us: np.ndarray, eps: float, bound: float, quantile: float,
-               color: bool, sts: list[UpsampleStats], block: int = 4) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`upsample` when nothing can be inserted: ``(frames as float32, t_us)``, every
-    pair recorded in ``sts`` as the pair-by-pair loop records it (the same steps and
+               color: bool, sts: list[UpsampleStats], block: int = 4, keep_log: bool = False
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`upsample` when nothing can be inserted: ``(frames as float32, t_us, log)``,
+    every pair recorded in ``sts`` as the pair-by-pair loop records it (the same steps and
     criterion), the steps computed ``block`` pairs at a time in place (cache-sized: about
-    half the time of whole-chunk temporaries)."""
+    half the time of whole-chunk temporaries). ``log``: with ``keep_log`` and grey frames,
+    ``log(frames + eps)`` of every frame (float32, computed once for the steps), else None."""
     ims = _as_float(images)
     e = np.float32(eps)
+    kept = np.empty_like(ims) if keep_log and not color else None
 
-    def logs(frames: np.ndarray) -> np.ndarray:
+    def logs(a: int, b: int) -> np.ndarray:
         if color:
-            return np.stack([_log_luminance(f, eps, color=True) for f in frames])
-        out = frames + e
+            return np.stack([_log_luminance(f, eps, color=True) for f in ims[a:b]])
+        out = np.empty_like(ims[a:b]) if kept is None else kept[a:b]
+        np.add(ims[a:b], e, out=out)
         return np.log(out, out=out)
 
-    prev = logs(ims[:1])
+    prev = logs(0, 1)
     for s in range(0, ims.shape[0] - 1, block):
-        lg = logs(ims[s + 1:s + 1 + block])
+        lg = logs(s + 1, s + 1 + block)
         d = np.empty_like(lg)
         np.subtract(lg[:1], prev, out=d[:1])
         np.subtract(lg[1:], lg[:-1], out=d[1:])
@@ -663,7 +702,7 @@ def _unchanged(images: np.ndarray, t_us: np.ndarray, eps: float, bound: float, q
         for st in sts:
             for c, m, o in zip(crits, strict, over):
                 st._add(bound, float(c), 0, 0, flat.shape[1], float(m), int(o))
-    return ims, t_us.copy()
+    return ims, t_us.copy(), kept
 
 
 def warn_if_over(stats: UpsampleStats, cfg: InterpolateConfig) -> None:

@@ -326,3 +326,28 @@ def test_quantile_exact_is_numpys_quantile_bit_for_bit():
             want, got = np.quantile(v, q), quantile_exact(v, q)
             assert np.asarray(got).tobytes() == np.asarray(want).tobytes(), (v.size, q, got, want)
         np.testing.assert_array_equal(v, before)   # input untouched
+
+
+@pytest.mark.parametrize("flow", ["dis", "farneback"])
+def test_pair_flows_in_two_threads_equal_the_sequential_flows(texture, flow, monkeypatch):
+    """The backward flow of a pair runs in a pool thread (its own DIS instance) while the
+    caller computes the forward one: the same flows bit for bit."""
+    import threading
+
+    import rdnet.sim.interpolate as itp
+    a, b = _translated(texture, [(0.0, 0.0), (5.0, 1.5)])
+    cfg = InterpolateConfig(method="flow", flow=flow)
+    names = []
+    real = itp._flow_of_u8
+
+    def recorded(ua, ub, c):
+        names.append(threading.current_thread().name)
+        return real(ua, ub, c)
+
+    monkeypatch.setattr(itp, "_flow_of_u8", recorded)
+    f01, f10 = itp.PairInterpolator(a, b, cfg)._prepare()[:2]
+    assert len(names) == 2 and threading.current_thread().name in names
+    assert any(n.startswith("rdnet-flow") for n in names)
+    ua, ub = itp._flow_u8(a), itp._flow_u8(b)
+    assert np.array_equal(f01, real(ua, ub, cfg)) and np.array_equal(f10, real(ub, ua, cfg))
+    assert not np.array_equal(f01, -f10)   # two different flows were computed

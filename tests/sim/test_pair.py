@@ -122,3 +122,86 @@ def test_randomize_details():
                           RandomizeConfig(), "test", np.random.default_rng(1))
     assert capped.hot_pixel_fraction <= 1.0
     assert set(EFFECT_KEYS) >= set(DEG.active())
+
+
+# --- prefetch: the producer thread of the CLI ---------------------------------------------------
+
+def _prefetch_threads():
+    import threading
+    return [t for t in threading.enumerate() if t.name == "rdnet-prefetch"]
+
+
+def test_prefetch_keeps_items_and_order_and_bounds_the_lead():
+    from rdnet.sim.pair import prefetch
+    produced = []
+
+    def items():
+        for i in range(50):
+            produced.append(i)
+            yield np.full(3, i)
+
+    got = []
+    for a in prefetch(items(), depth=2):
+        # the producer is at most depth items (+ the one it holds) ahead of the consumer
+        assert len(produced) - len(got) <= 4
+        got.append(int(a[0]))
+    assert got == list(range(50))
+    assert not _prefetch_threads()
+    assert list(prefetch([])) == []
+    with pytest.raises(ValidationError):
+        next(prefetch([1], depth=0))
+
+
+def test_prefetch_raises_producer_errors_in_the_consumer_and_stops_on_close():
+    from rdnet.sim.pair import prefetch
+
+    def failing():
+        yield 1
+        yield 2
+        raise ValueError("broken chunk")
+
+    it = prefetch(failing())
+    assert [next(it), next(it)] == [1, 2]
+    with pytest.raises(ValueError, match="broken chunk"):
+        next(it)
+    assert not _prefetch_threads()
+
+    closed = []
+
+    def endless():
+        try:
+            i = 0
+            while True:
+                yield i
+                i += 1
+        finally:
+            closed.append(True)
+
+    it = prefetch(endless(), depth=1)
+    assert next(it) == 0
+    it.close()   # the consumer stops early: the producer stops, its generator is closed
+    assert closed == [True]
+    assert not _prefetch_threads()
+
+
+def test_frame_chunks_hand_over_the_log_frames_the_statistics_computed():
+    import dataclasses as dc
+
+    from rdnet.sim.interpolate import InterpolateConfig, UpsampleStats
+    rng = np.random.default_rng(1)
+    im = rng.integers(0, 256, (11, 36, 40), dtype=np.uint8)
+    t = np.arange(11, dtype=np.int64) * 1000
+    parts = [Frames(im[i:i + 4], t[i:i + 4], np.zeros(len(t[i:i + 4]), np.int64)) for i in range(0, 11, 4)]
+    cfg = InterpolateConfig(method="flow", max_upsample=1, pixel_quantile=0.99)
+    plain_stats, log_stats = UpsampleStats(), UpsampleStats()
+    plain = list(frame_chunks(parts, interpolate=cfg, log_eps=0.02, chunk=4, stats=plain_stats))
+    got = list(frame_chunks(parts, interpolate=cfg, log_eps=0.02, chunk=4, stats=log_stats, with_log=True))
+    assert [len(c) for c in got] == [3] * len(plain) and len(plain) == 3
+    assert plain_stats.as_dict() == log_stats.as_dict()
+    for (g, tt), (g2, tt2, lg) in zip(plain, got):
+        assert np.array_equal(g, g2) and np.array_equal(tt, tt2)
+        assert lg.dtype == np.float32 and np.array_equal(lg, np.log(g + np.float32(0.02)))
+    # not computed (None): frames inserted, another log_eps, no interpolation at all
+    for c, eps in ((dc.replace(cfg, max_upsample=4, method="linear"), 0.02), (dc.replace(cfg, log_eps=0.05), 0.02)):
+        assert all(lg is None for *_, lg in frame_chunks(parts, interpolate=c, log_eps=eps, chunk=4, with_log=True))
+    assert all(lg is None for *_, lg in frame_chunks(parts, log_eps=0.02, chunk=4, with_log=True))

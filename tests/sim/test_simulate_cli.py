@@ -231,3 +231,53 @@ def test_background_writes_keep_order_and_raise_errors(tmp_path):
             bg.append_events(ev([5, 6]))
             bg.append_events(ev([1]))            # out of order: fails in the thread
     assert not bad.exists()
+
+
+def test_error_while_reading_ahead_exits_2_without_output_or_thread(pan_u8, tmp_path, monkeypatch, capsys):
+    """A source that fails after its first chunk (read in the prefetch thread): one-line
+    error, exit 2, no output file, no thread left."""
+    import threading
+
+    import rdnet.sim.sources as sources
+    from rdnet.errors import FormatError
+
+    src, params, im, t = pan_u8
+    real = sources.iter_frames
+
+    def failing(path, **kw):
+        it = real(path, **kw)
+        yield next(it)
+        yield next(it)
+        raise FormatError(path, "frames/images", "corrupt chunk")
+
+    monkeypatch.setattr(sources, "iter_frames", failing)
+    out = tmp_path / "out.h5"
+    assert cli.main(["simulate", str(src), str(out), "--params", str(params), "--chunk", "2"]) == 2
+    assert "corrupt chunk" in capsys.readouterr().err
+    assert not out.exists() and not list(tmp_path.glob("out*"))
+    assert not [th for th in threading.enumerate() if th.name in ("rdnet-prefetch", "h5-writer")]
+
+
+def test_kernels_leave_a_core_and_get_the_log_frames_of_the_statistics(pan_u8, tmp_path, monkeypatch):
+    import numba
+
+    import rdnet.sim.sensor as sensor_mod
+    src, params, _, _ = pan_u8
+    before = numba.get_num_threads()
+    seen = []
+    real_step = sensor_mod.Sensor.step
+
+    def step(self, *a, log_frames=None, **kw):
+        seen.append((numba.get_num_threads(), log_frames is not None))
+        return real_step(self, *a, log_frames=log_frames, **kw)
+
+    monkeypatch.setattr(sensor_mod.Sensor, "step", step)
+    assert cli.main(["simulate", str(src), str(tmp_path / "o.h5"), "--params", str(params), "--chunk", "3"]) == 0
+    # frames inserted: the sensors compute the log themselves
+    assert set(seen) == {(max(1, before - 1), False)}
+    assert numba.get_num_threads() == before
+    seen.clear()
+    assert cli.main(["simulate", str(src), str(tmp_path / "o1.h5"), "--params", str(params), "--chunk", "3",
+                     "--set", "interpolate.max_upsample=1"]) == 0
+    # nothing inserted: the log frames of the statistics are handed over
+    assert set(seen) == {(max(1, before - 1), True)} and len(seen) == 3
