@@ -9,8 +9,10 @@ undegraded with ``--ideal``; ``--pair`` writes both (degraded in /events, undegr
 Frames and events are streamed chunk by chunk (bounded memory); the output is written
 to a temporary file and moved into place only on success. Frames are stored as the
 source holds them (uint8 HDF5 frames stay uint8; video and image frames as float32
-linear), compressed with LZF by default (``--compression``), or not at all with
-``--no-frames``; frames and events are written from a background thread, and the
+linear), or not at all with ``--no-frames``. ``--compression auto`` (the default) copies
+the frames of an HDF5 INPUT as stored, compressed chunks and all, without decoding and
+re-encoding them, and compresses everything else with LZF; ``lzf``, ``gzip`` or ``none``
+(re)encode frames and events alike; frames and events are written from a background thread, and the
 frames are read (and upsampled) one or two chunks ahead in another, so the sensor
 kernels run on one numba thread fewer than the cores.
 
@@ -50,8 +52,9 @@ def register(subparsers) -> None:
     p.add_argument("--chunk", type=int, default=64, help="simulation steps per chunk (default 64)")
     p.add_argument("--no-frames", dest="store_frames", action="store_false",
                    help="do not copy the input frames into OUTPUT (events only)")
-    p.add_argument("--compression", choices=["lzf", "gzip", "none"], default="lzf",
-                   help="HDF5 compression of OUTPUT (default lzf: fast; gzip: ~smaller, slower)")
+    p.add_argument("--compression", choices=["auto", "lzf", "gzip", "none"], default="auto",
+                   help="HDF5 compression of OUTPUT (default auto: frames of an HDF5 input copied as "
+                        "stored, the rest LZF; lzf: fast; gzip: ~smaller, slower; none)")
     p.set_defaults(func=run)
 
 
@@ -97,7 +100,7 @@ def run(args) -> int:
     from rdnet.sim.randomize import degradation_level, draw_degrade
     from rdnet.sim.sensor import Sensor
     from rdnet.sim.settings import DegradeConfig
-    from rdnet.sim.sources import iter_frames
+    from rdnet.sim.sources import iter_frames, source_kind
 
     params = load_cli_params(args)
     source_of_params = params_source(args)
@@ -129,9 +132,12 @@ def run(args) -> int:
         raise FormatError(args.input, "frames", "no frames")
     width, height = first.width, first.height
 
+    # frames of an HDF5 recording are copied chunk for chunk as stored (no decode/encode)
+    copy_frames = args.store_frames and args.compression == "auto" and source_kind(args.input) == "hdf5"
+
     def frames_written(bg):
         for f in itertools.chain([first], source):
-            if args.store_frames:
+            if args.store_frames and not copy_frames:
                 bg.append_frames(f.images, f.t_us, f.exposure_us)
             yield f
 
@@ -145,7 +151,10 @@ def run(args) -> int:
 
     counts = dict.fromkeys(groups, 0)
     n_frames = 0
-    with H5RecordingWriter(args.output, width, height, "simulated", compression=args.compression) as w:
+    compression = "lzf" if args.compression == "auto" else args.compression
+    with H5RecordingWriter(args.output, width, height, "simulated", compression=compression) as w:
+        if copy_frames:
+            w.copy_frames(args.input)
         w.set_attr("params_source", source_of_params)
         w.set_attr("degrade_json", json.dumps(to_dict(applied)))
         w.set_attr("sensor_json", json.dumps(to_dict(sensor)))

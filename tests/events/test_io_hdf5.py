@@ -224,3 +224,29 @@ def test_frames_of_wrong_size_rejected_by_writer(tmp_path):
         with H5RecordingWriter(tmp_path / "f.h5", 6, 5) as w:
             w.write_frames(fr)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_copy_frames_keeps_the_stored_chunks_and_appends_continue(tmp_path, rng):
+    n, h, w = 5, 6, 7
+    im = rng.integers(0, 256, (n, h, w), dtype=np.uint8)
+    src = tmp_path / "src.h5"
+    write_recording(src, Recording(w, h, frames=Frames(im, np.arange(n) * 10, np.full(n, 3))))
+    out = tmp_path / "out.h5"
+    with H5RecordingWriter(out, w, h, compression="lzf") as wr:
+        assert wr.copy_frames(src) == n
+        wr.append_frames(im[:2], np.array([100, 110]), np.zeros(2, np.int64))
+        with pytest.raises(ValidationError, match="frames/t"):
+            wr.append_frames(im[:1], np.array([105]), np.zeros(1, np.int64))
+    fr = read_frames(out)
+    np.testing.assert_array_equal(fr.images, np.concatenate([im, im[:2]]))
+    np.testing.assert_array_equal(fr.t_us, [0, 10, 20, 30, 40, 100, 110])
+    with h5py.File(src, "r") as a, h5py.File(out, "r") as b:
+        assert b["frames/images"].compression == a["frames/images"].compression == "gzip"
+    with H5RecordingWriter(tmp_path / "x.h5", w, h) as wr:
+        wr.append_frames(im[:1], np.array([0]), np.zeros(1, np.int64))
+        with pytest.raises(ValidationError, match="already written"):
+            wr.copy_frames(src)
+    with pytest.raises(FormatError, match="frame size"):
+        with H5RecordingWriter(tmp_path / "y.h5", w + 1, h) as wr:
+            wr.copy_frames(src)
+    assert not (tmp_path / "y.h5").exists()

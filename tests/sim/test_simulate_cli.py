@@ -134,6 +134,19 @@ def test_frames_keep_the_source_dtype_or_are_skipped(pan_u8, tmp_path):
     assert rec.frames.images.dtype == np.uint8
     np.testing.assert_array_equal(rec.frames.images, im)
     np.testing.assert_array_equal(rec.frames.t_us, t)
+    import h5py
+    with h5py.File(src, "r") as a, h5py.File(out, "r") as b:   # auto: copied as stored
+        assert a["frames/images"].compression == "gzip"
+        assert b["frames/images"].compression == "gzip"
+        assert b["events/t"].compression == "lzf"
+    lzf = tmp_path / "lzf.h5"
+    assert cli.main(["simulate", str(src), str(lzf), "--params", str(params), "--no-interpolate",
+                     "--compression", "lzf"]) == 0   # explicit: frames re-encoded
+    with h5py.File(lzf, "r") as b:
+        assert b["frames/images"].compression == "lzf"
+    same = read_recording(lzf)
+    np.testing.assert_array_equal(same.frames.images, im)
+    assert np.array_equal(same.events.array, rec.events.array)
     bare = tmp_path / "bare.h5"
     assert cli.main(["simulate", str(src), str(bare), "--params", str(params), "--no-interpolate",
                      "--no-frames", "--compression", "gzip"]) == 0

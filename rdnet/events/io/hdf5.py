@@ -502,6 +502,34 @@ class H5RecordingWriter:
             raise as_format_error(self.path, e, "frames", what="cannot write") from e
         st["n"], st["last_t"] = n0 + n, int(fr.t_us[-1])
 
+    def copy_frames(self, source: str | Path) -> int:
+        """Copy the whole ``/frames`` group of the HDF5 recording ``source`` as stored: its
+        compressed chunks are copied without decoding or re-encoding (HDF5's object copy),
+        so the frames keep the source's dtype, chunking and compression. Only before any
+        frames were written; later :meth:`append_frames` calls continue the copied frames.
+        Returns the number of frames copied (FormatError when ``source`` has none or its
+        frame size is not this recording's sensor size)."""
+        f = self._check_open()
+        if self._frames is not None:
+            raise ValidationError("frames", "frames were already written; copy_frames must come first")
+        source = require_file(source)
+        with wrap_errors(source), h5py.File(source, "r") as src:
+            fr = _read_frames_group(src, source, 0, 1)
+            if fr is None or len(fr) == 0:
+                raise FormatError(source, "frames", "recording has no frames")
+            if (fr.width, fr.height) != (self.width, self.height):
+                raise FormatError(source, "frames/images", f"frame size {fr.width}x{fr.height} != "
+                                                           f"sensor {self.width}x{self.height}")
+            try:
+                src.copy(src["frames"], f, "frames")
+            except OSError as e:
+                raise as_format_error(self.path, e, "frames", what="cannot write") from e
+        g = f["frames"]
+        n = int(g["t"].shape[0])
+        self._frames = {"group": g, "n": n, "last_t": int(g["t"][n - 1]),
+                        "shape": g["images"].shape[1:], "dtype": g["images"].dtype}
+        return n
+
 
 class BackgroundWrites:
     """Runs the appends of an :class:`H5RecordingWriter` in one background thread, in the
