@@ -1,0 +1,169 @@
+"""Camera-specific restoration (closed loop): calibrate -> simulate -> train -> restore.
+
+``rdnet calibrate`` fits a sensor + degradation to a real recording (its ``report.json``,
+``fitted_config``). The closed loop simulates the study's sequences with that fitted
+sensor and degradation (the study's own :func:`rdnet.study.data.simulate_sequences` with
+``study.degrade_from`` pointing at the report, then :func:`rdnet.study.data.make_pairs`),
+trains the image-guided count restorer on them exactly as the ``train_restore`` stage does
+(:func:`rdnet.study.training.train_seeds`, task ``restore``, the ``model`` and ``train``
+sections), and compares it with the generic restorer on the recording itself
+(:func:`rdnet.restore.run.restore_recording`: events out, event-frame consistency R^2,
+ESR) and on the calibrated held-out simulated sequences (event-level metrics,
+:func:`rdnet.study.rows.restoration_table`).
+
+Degradation strength: every sequence of both splits is simulated with every fitted effect
+at exactly ``scale`` x its fitted value (default 1: the camera as calibrated), not with the
+study's randomized draws, whose training range (``randomize.train_scale``, 0.5-0.9x) never
+reaches the fitted strength itself.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import logging
+from pathlib import Path
+from typing import Mapping
+
+from rdnet.config import section, to_dict
+
+log = logging.getLogger(__name__)
+
+#: the rows of the comparison on the real recording, in table order.
+ROWS = ("raw", "generic", "camera")
+#: what each row reports (summary.json ``recording.rows.<row>``).
+ROW_KEYS = ("method", "checkpoint", "events_out", "count_ratio", "esr", "consistency_r2")
+
+
+def calibrated_params(params: Mapping, report: str | Path) -> dict:
+    """A deep copy of ``params`` whose ``study.degrade_from`` names ``report`` (the input is
+    not changed); the report is read and validated here (FormatError naming it)."""
+    from rdnet.study.config import calibrated_configs
+    calibrated_configs(report)
+    p = copy.deepcopy(dict(params))
+    p["study"] = {**(p.get("study") or {}), "degrade_from": str(report)}
+    section(p, "study")
+    return p
+
+
+def lowest_seed(params: Mapping):
+    """The ``study`` section with only its lowest seed (one training, no worker pool)."""
+    study = section(params, "study")
+    return dataclasses.replace(study, seeds=(min(study.seeds),), parallel=1)
+
+
+def simulate_calibrated(params: Mapping, report: str | Path, scenes: Path, interp: Path, work: Path, *,
+                        scale: float = 1.0, splits=None) -> dict:
+    """Events (``work/events/<split>/seq_XXX.h5``) and pairs (``work/pairs/<split>.h5``) of
+    the study's sequences simulated with the calibrated sensor + degradation of ``report``,
+    every fitted effect at ``scale`` x its value. Returns what was simulated."""
+    from rdnet.sim.scenes import SPLITS
+    from rdnet.study.config import calibrated_configs
+    from rdnet.study.data import make_pairs, simulate_sequences
+    splits = tuple(splits or SPLITS)
+    p = calibrated_params(params, report)
+    sensor, degrade = calibrated_configs(report)
+    work = Path(work)
+    events = simulate_sequences(p, Path(scenes), Path(interp), work / "events", splits, fixed_scale=scale)
+    pairs = make_pairs(p, work / "events", work / "pairs", splits)
+    return {"report": str(report), "sensor": to_dict(sensor), "degrade": to_dict(degrade),
+            "active_effects": list(degrade.active()), "scale": float(scale), "events": events, "pairs": pairs}
+
+
+def train_camera_restorer(params: Mapping, train_pairs: Path, out: Path, *, timing: Path | None = None,
+                          progress: bool = True) -> dict:
+    """The image-guided count restorer (task ``restore``, as stage ``train_restore``)
+    trained on ``train_pairs`` into ``out/seed<k>`` for the lowest seed of ``study.seeds``."""
+    from rdnet.study.config import NetworkConfig
+    from rdnet.study.training import train_seeds
+    return train_seeds(NetworkConfig(task="restore"), lowest_seed(params), section(params, "train"),
+                       section(params, "model"), train_pairs, out, progress=progress, timing=timing)
+
+
+def _row(res: dict) -> dict:
+    cons = (res["scores"].get("consistency") or {}).get("restored") or {}
+    esr = res["scores"].get("esr") or {}
+    n_in = res["events_in"]
+    return {"method": res["method"], "checkpoint": res["checkpoint"], "events_out": res["events_out"],
+            "count_ratio": res["events_out"] / n_in if n_in else None,
+            "esr": esr.get("restored"), "consistency_r2": cons.get("r2_fitted")}
+
+
+def compare_on_recording(params: Mapping, recording: Path, restorers: Mapping[str, Path], data_out: Path, *,
+                         progress: bool = False) -> dict:
+    """``rdnet restore`` of ``recording`` unchanged (row ``raw``) and with each learned
+    restorer of ``restorers`` (row name -> checkpoint: a ``model.pt`` or a network folder,
+    its lowest seed), the restored streams in ``data_out/<row>.h5``. Returns ``events_in``
+    and ``rows`` (:data:`ROW_KEYS` per row; ``count_ratio`` = events out / events in)."""
+    from rdnet.restore.run import restore_recording
+    data_out = Path(data_out)
+    data_out.mkdir(parents=True, exist_ok=True)
+    raw = restore_recording(recording, data_out / "raw.h5", params, method="raw", progress=progress)
+    rows = {"raw": _row(raw)}
+    for name, ck in restorers.items():
+        res = restore_recording(recording, data_out / f"{name}.h5", params, method="rdnet", checkpoint=ck,
+                                progress=progress)
+        rows[name] = _row(res)
+    return {"recording": str(recording), "events_in": raw["events_in"], "duration_us": raw["duration_us"],
+            "has_frames": raw["has_frames"], "rows": rows}
+
+
+def in_domain(params: Mapping, pairs: Path, events_dir: Path, restorers: Mapping[str, Path]) -> dict:
+    """Event-level metrics (precision, recall, F1, count ratio, voxel L1) of the raw
+    degraded events (``raw``) and of each restorer (lowest seed) on the calibrated held-out
+    sequences (``pairs``: a pairs file of :func:`simulate_calibrated`)."""
+    from rdnet.study.rows import EVENT_KEYS, restoration_table
+    seeds = lowest_seed(params).seeds
+    table = restoration_table(section(params, "ablation"), Path(pairs), Path(events_dir),
+                              {k: Path(v) for k, v in restorers.items()}, filters=(), seeds=seeds)
+    out = {}
+    for name, entry in table.items():
+        ev = entry.get("events") or {}
+        out["raw" if name == "degraded" else name] = {k: ev.get(k) for k in EVENT_KEYS}
+    return out
+
+
+def _fmt(v, spec=".3f"):
+    return "-" if v is None else format(v, spec)
+
+
+def summary_markdown(summary: Mapping) -> str:
+    """The tables of ``summary.json`` (real recording; in-domain check when present)."""
+    rec = summary["recording"]
+    lines = [f"Closed loop on `{rec['recording']}` ({rec['events_in']:,} raw events): "
+             "the generic restorer (`models/restore_image`) against the one trained on the "
+             "calibrated degradation (camera).", "",
+             "| row | method | checkpoint | events out | count ratio | ESR | consistency R^2 |",
+             "|---|---|---|---|---|---|---|"]
+    for name, r in rec["rows"].items():
+        lines.append(f"| {name} | {r['method']} | {r['checkpoint'] or '-'} | {r['events_out']:,} | "
+                     f"{_fmt(r['count_ratio'], '.3f')}x | {_fmt(r['esr'])} | {_fmt(r['consistency_r2'])} |")
+    dom = summary.get("in_domain")
+    if dom:
+        lines += ["", "In-domain check: the calibrated-degradation held-out (test) sequences, event-level "
+                  "metrics against the undegraded events.", "",
+                  "| row | precision | recall | F1 | count ratio | voxel L1 (all) | voxel L1 (event) |",
+                  "|---|---|---|---|---|---|---|"]
+        for name, m in dom.items():
+            lines.append(f"| {name} | {_fmt(m['precision'])} | {_fmt(m['recall'])} | {_fmt(m['f1'])} | "
+                         f"{_fmt(m['count_ratio'])} | {_fmt(m['voxel_l1_all'], '.4f')} | "
+                         f"{_fmt(m['voxel_l1_event'], '.4f')} |")
+    return "\n".join(lines) + "\n"
+
+
+def summary_figure(summary: Mapping, path: Path) -> Path:
+    """Bars of consistency R^2, count ratio and ESR per row on the real recording."""
+    from rdnet.eval.report import _figure, _save_figure
+    rows = summary["recording"]["rows"]
+    names = list(rows)
+    fig, axes = _figure(1, 3, figsize=(9.0, 2.6))
+    for ax, (key, title) in zip(axes, (("consistency_r2", "event-frame consistency R^2"),
+                                       ("count_ratio", "events out / raw"), ("esr", "ESR"))):
+        vals = [rows[n][key] if rows[n][key] is not None else float("nan") for n in names]
+        ax.bar(names, vals, color=["0.6", "tab:blue", "tab:orange"][:len(names)])
+        for i, v in enumerate(vals):
+            ax.text(i, v, f"{v:.3f}", ha="center", va="bottom", fontsize=7)
+        ax.set_title(title, fontsize=9)
+        ax.tick_params(labelsize=8)
+    fig.suptitle(f"{Path(summary['recording']['recording']).name}: generic vs camera-specific restorer",
+                 fontsize=9)
+    return _save_figure(fig, path)
