@@ -3,7 +3,8 @@ study's sequences with the sensor + degradation that `rdnet calibrate` fitted to
 recording (--report; every fitted effect at --scale x its value), trains the image-guided count
 restorer on them as `train_restore` does (lowest seed of study.seeds) into --models, and
 compares it with the generic restorer (--generic) on the recording: events out, count ratio,
-ESR, event-frame consistency R^2 (raw, generic, camera), plus the event-level metrics of both
+ESR, event-frame consistency R^2 (raw; raw with the fitted latency subtracted from its
+timestamps; generic; camera), plus the event-level metrics of both
 restorers on the calibrated held-out sequences (in-domain check). Writes OUT/summary.json,
 OUT/summary.md and OUT/summary.png; simulated data and restored streams go to --work
 (params: seed, randomize, blur, voxel, scenes.color, model, train, study.seeds, restore,
@@ -22,7 +23,8 @@ def main(args, params):
     restorers = {"generic": args.generic, "camera": args.models}
     summary = {"simulation": sim,
                "training": {k: train[k] for k in ("task", "seeds", "parameters", "runs")},
-               "recording": cl.compare_on_recording(params, args.recording, restorers, args.work / "restored"),
+               "recording": cl.compare_on_recording(params, args.recording, restorers, args.work / "restored",
+                                                    latency_us=sim["degrade"]["latency_us"]),
                "in_domain": cl.in_domain(params, args.work / "pairs" / "test.h5", args.work / "events" / "test",
                                          restorers)}
     for run in summary["training"]["runs"]:      # wall time goes to --timing only (reproducible summary)

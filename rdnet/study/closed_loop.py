@@ -28,8 +28,10 @@ from rdnet.config import section, to_dict
 
 log = logging.getLogger(__name__)
 
-#: the rows of the comparison on the real recording, in table order.
-ROWS = ("raw", "generic", "camera")
+#: the rows of the comparison on the real recording, in table order (``latency_corrected``:
+#: the raw events with the fitted latency subtracted from their timestamps, when the
+#: calibration fitted one -- the calibration's own correction, nothing learned).
+ROWS = ("raw", "latency_corrected", "generic", "camera")
 #: what each row reports (summary.json ``recording.rows.<row>``).
 ROW_KEYS = ("method", "checkpoint", "events_out", "count_ratio", "esr", "consistency_r2")
 
@@ -88,23 +90,44 @@ def _row(res: dict) -> dict:
             "esr": esr.get("restored"), "consistency_r2": cons.get("r2_fitted")}
 
 
+def latency_corrected(recording: Path, latency_us: float, out: Path) -> Path:
+    """``recording`` (events and frames; read whole) written to ``out`` (HDF5) with
+    ``round(latency_us)`` subtracted from every event timestamp: a constant sensor latency
+    undone. The order of the events does not change."""
+    from rdnet.events import Events, Recording
+    from rdnet.events.io import load, write_recording
+    rec = load(recording)
+    ev = rec.require_events(str(recording))
+    arr = ev.array.copy()
+    arr["t"] -= int(round(latency_us))
+    write_recording(out, Recording(rec.width, rec.height, Events(arr, rec.width, rec.height), rec.frames,
+                                   rec.sensor, dict(rec.attrs)))
+    return Path(out)
+
+
 def compare_on_recording(params: Mapping, recording: Path, restorers: Mapping[str, Path], data_out: Path, *,
-                         progress: bool = False) -> dict:
-    """``rdnet restore`` of ``recording`` unchanged (row ``raw``) and with each learned
-    restorer of ``restorers`` (row name -> checkpoint: a ``model.pt`` or a network folder,
-    its lowest seed), the restored streams in ``data_out/<row>.h5``. Returns ``events_in``
-    and ``rows`` (:data:`ROW_KEYS` per row; ``count_ratio`` = events out / events in)."""
+                         latency_us: float = 0.0, progress: bool = False) -> dict:
+    """``rdnet restore`` of ``recording`` unchanged (row ``raw``), with ``latency_us``
+    subtracted from its timestamps when > 0 (row ``latency_corrected``,
+    :func:`latency_corrected`) and with each learned restorer of ``restorers`` (row name ->
+    checkpoint: a ``model.pt`` or a network folder, its lowest seed), the restored streams in
+    ``data_out/<row>.h5``. Returns ``events_in`` and ``rows`` (:data:`ROW_KEYS` per row;
+    ``count_ratio`` = events out / events in)."""
     from rdnet.restore.run import restore_recording
     data_out = Path(data_out)
     data_out.mkdir(parents=True, exist_ok=True)
     raw = restore_recording(recording, data_out / "raw.h5", params, method="raw", progress=progress)
     rows = {"raw": _row(raw)}
+    if latency_us > 0:
+        shifted = latency_corrected(recording, latency_us, data_out / "latency_corrected.input.h5")
+        res = restore_recording(shifted, data_out / "latency_corrected.h5", params, method="raw", progress=progress)
+        rows["latency_corrected"] = {**_row(res), "method": f"raw - {int(round(latency_us))} us"}
     for name, ck in restorers.items():
         res = restore_recording(recording, data_out / f"{name}.h5", params, method="rdnet", checkpoint=ck,
                                 progress=progress)
         rows[name] = _row(res)
     return {"recording": str(recording), "events_in": raw["events_in"], "duration_us": raw["duration_us"],
-            "has_frames": raw["has_frames"], "rows": rows}
+            "has_frames": raw["has_frames"], "latency_us": float(latency_us), "rows": rows}
 
 
 def in_domain(params: Mapping, pairs: Path, events_dir: Path, restorers: Mapping[str, Path]) -> dict:
@@ -129,9 +152,13 @@ def _fmt(v, spec=".3f"):
 def summary_markdown(summary: Mapping) -> str:
     """The tables of ``summary.json`` (real recording; in-domain check when present)."""
     rec = summary["recording"]
+    note = ""
+    if "latency_corrected" in rec["rows"]:
+        note = (f"; `latency_corrected`: the raw events with the fitted latency ({rec['latency_us'] / 1e3:.2f} ms) "
+                "subtracted from their timestamps")
     lines = [f"Closed loop on `{rec['recording']}` ({rec['events_in']:,} raw events): "
-             "the generic restorer (`models/restore_image`) against the one trained on the "
-             "calibrated degradation (camera).", "",
+             "the generic restorer (`generic`) against the one trained on the "
+             f"calibrated degradation (`camera`){note}.", "",
              "| row | method | checkpoint | events out | count ratio | ESR | consistency R^2 |",
              "|---|---|---|---|---|---|---|"]
     for name, r in rec["rows"].items():
@@ -159,7 +186,9 @@ def summary_figure(summary: Mapping, path: Path) -> Path:
     for ax, (key, title) in zip(axes, (("consistency_r2", "event-frame consistency R^2"),
                                        ("count_ratio", "events out / raw"), ("esr", "ESR"))):
         vals = [rows[n][key] if rows[n][key] is not None else float("nan") for n in names]
-        ax.bar(names, vals, color=["0.6", "tab:blue", "tab:orange"][:len(names)])
+        colors = {"raw": "0.6", "latency_corrected": "0.35", "generic": "tab:blue", "camera": "tab:orange"}
+        ax.bar([n.replace("latency_corrected", "raw-latency") for n in names], vals,
+               color=[colors.get(n, "tab:green") for n in names])
         for i, v in enumerate(vals):
             ax.text(i, v, f"{v:.3f}", ha="center", va="bottom", fontsize=7)
         ax.set_title(title, fontsize=9)

@@ -77,8 +77,13 @@ def test_calibrated_sensor_and_degradation_reach_the_simulation(params, tmp_path
 def test_compare_on_recording_raw_row_is_the_recording(params, tmp_path, make_recording):
     rec = make_recording(n_events=3000, n_frames=4, width=32, height=24)
     write_recording(tmp_path / "r.h5", rec)
-    res = CL.compare_on_recording(params, tmp_path / "r.h5", {"generic": PACKAGE_IMAGE}, tmp_path / "out")
-    assert list(res["rows"]) == ["raw", "generic"] and res["events_in"] == 3000
+    res = CL.compare_on_recording(params, tmp_path / "r.h5", {"generic": PACKAGE_IMAGE}, tmp_path / "out",
+                                  latency_us=2500.4)
+    assert list(res["rows"]) == ["raw", "latency_corrected", "generic"] and res["events_in"] == 3000
+    shifted = read_events(tmp_path / "out" / "latency_corrected.h5")
+    assert np.array_equal(shifted.t, rec.events.t - 2500) and np.array_equal(shifted.x, rec.events.x)
+    assert res["rows"]["latency_corrected"]["method"] == "raw - 2500 us"
+    assert res["rows"]["latency_corrected"]["count_ratio"] == 1.0
     raw, gen = res["rows"]["raw"], res["rows"]["generic"]
     assert set(raw) == set(CL.ROW_KEYS) and raw["method"] == "raw" and raw["checkpoint"] is None
     assert raw["events_out"] == 3000 and raw["count_ratio"] == 1.0
@@ -89,4 +94,5 @@ def test_compare_on_recording_raw_row_is_the_recording(params, tmp_path, make_re
     assert raw["esr"] is not None and raw["consistency_r2"] is not None
     md = CL.summary_markdown({"recording": res})
     assert md.count("\n| raw | raw | - | 3,000 | 1.000x |") == 1 and "| generic | rdnet-image |" in md
+    assert "| latency_corrected | raw - 2500 us |" in md and "(2.50 ms)" in md
     assert CL.summary_figure({"recording": res}, tmp_path / "s.png").stat().st_size > 0
