@@ -149,6 +149,11 @@ def _fmt(v, spec=".3f"):
     return "-" if v is None else format(v, spec)
 
 
+def _ordered(rows: Mapping) -> list:
+    """Row names in :data:`ROWS` order, others after (summary.json stores sorted keys)."""
+    return [n for n in ROWS if n in rows] + sorted(n for n in rows if n not in ROWS)
+
+
 def summary_markdown(summary: Mapping) -> str:
     """The tables of ``summary.json`` (real recording; in-domain check when present)."""
     rec = summary["recording"]
@@ -161,7 +166,8 @@ def summary_markdown(summary: Mapping) -> str:
              f"calibrated degradation (`camera`){note}.", "",
              "| row | method | checkpoint | events out | count ratio | ESR | consistency R^2 |",
              "|---|---|---|---|---|---|---|"]
-    for name, r in rec["rows"].items():
+    for name in _ordered(rec["rows"]):
+        r = rec["rows"][name]
         lines.append(f"| {name} | {r['method']} | {r['checkpoint'] or '-'} | {r['events_out']:,} | "
                      f"{_fmt(r['count_ratio'], '.3f')}x | {_fmt(r['esr'])} | {_fmt(r['consistency_r2'])} |")
     dom = summary.get("in_domain")
@@ -170,7 +176,8 @@ def summary_markdown(summary: Mapping) -> str:
                   "metrics against the undegraded events.", "",
                   "| row | precision | recall | F1 | count ratio | voxel L1 (all) | voxel L1 (event) |",
                   "|---|---|---|---|---|---|---|"]
-        for name, m in dom.items():
+        for name in _ordered(dom):
+            m = dom[name]
             lines.append(f"| {name} | {_fmt(m['precision'])} | {_fmt(m['recall'])} | {_fmt(m['f1'])} | "
                          f"{_fmt(m['count_ratio'])} | {_fmt(m['voxel_l1_all'], '.4f')} | "
                          f"{_fmt(m['voxel_l1_event'], '.4f')} |")
@@ -181,8 +188,8 @@ def summary_figure(summary: Mapping, path: Path) -> Path:
     """Bars of consistency R^2, count ratio and ESR per row on the real recording."""
     from rdnet.eval.report import _figure, _save_figure
     rows = summary["recording"]["rows"]
-    names = list(rows)
-    fig, axes = _figure(1, 3, figsize=(9.0, 2.6))
+    names = _ordered(rows)
+    fig, axes = _figure(1, 3, figsize=(10.5, 3.0))
     for ax, (key, title) in zip(axes, (("consistency_r2", "event-frame consistency R^2"),
                                        ("count_ratio", "events out / raw"), ("esr", "ESR"))):
         vals = [rows[n][key] if rows[n][key] is not None else float("nan") for n in names]
@@ -192,7 +199,8 @@ def summary_figure(summary: Mapping, path: Path) -> Path:
         for i, v in enumerate(vals):
             ax.text(i, v, f"{v:.3f}", ha="center", va="bottom", fontsize=7)
         ax.set_title(title, fontsize=9)
-        ax.tick_params(labelsize=8)
+        ax.tick_params(labelsize=7)
+        ax.set_ylim(0, 1.12 * max([v for v in vals if v == v] or [1.0]))
     fig.suptitle(f"{Path(summary['recording']['recording']).name}: generic vs camera-specific restorer",
-                 fontsize=9)
+                 fontsize=9, y=1.02)
     return _save_figure(fig, path)
