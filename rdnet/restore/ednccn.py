@@ -81,8 +81,8 @@ class EdnccnConfig:
     tau_us: int = 10_000
     conv_channels: tuple[int, ...] = (16, 32)
     hidden: tuple[int, ...] = (192, 96)
-    max_train_events: int = 200_000
-    epochs: int = 3
+    max_train_events: int = 400_000
+    epochs: int = 4
     batch_size: int = 512
     lr: float = 0.002
     val_sequences: int = 2
