@@ -1,7 +1,7 @@
 """Stage `restore_real`: every restore method (raw, baf, stcf, gef where the recording has
-frames, rdnet when the learned restorer is installed) over the real recordings of
-data/real and those of --shared that rdnet can read (others are skipped with a warning),
-scored without ground truth (params: restore, sensor).
+frames, rdnet when the learned restorer is installed, ednccn when models/ednccn is trained)
+over the real recordings of data/real and those of --shared that rdnet can read (others
+are skipped with a warning), scored without ground truth (params: restore, sensor).
 
 Per recording and method: events kept, ESR (E-MLB), event-frame consistency (with
 frames), and region fractions -- the share of the raw events kept inside the *activity
@@ -23,7 +23,7 @@ HOT_PIXELS = {"dvxplorer_person": [(187, 105), (204, 157), (241, 196), (307, 97)
 SENSOR_SIZE = {"ecd_shapes_subset": (240, 180)}
 MASK = {"sigma_px": 4.0, "rel_threshold": 0.25, "quantile": 0.999}
 SKIP = {".md", ".png", ".jpg", ".json", ".yaml", ".dvc"}
-METHODS = ("raw", "baf", "stcf", "gef", "rdnet")
+METHODS = ("raw", "baf", "stcf", "gef", "rdnet", "ednccn")
 #: Extra rows: (key, method, restore overrides, label suffix). The learned restorer without
 #: the hot-pixel pass shows what the network removes by itself.
 VARIANTS = (("rdnet_no_hot_pass", "rdnet", {"hot_pixel_factor": 0}, " (no hot-pixel pass)"),)

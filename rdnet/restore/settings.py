@@ -7,13 +7,14 @@ from typing import Literal
 from rdnet.config import positive
 from rdnet.errors import ConfigError
 
-METHODS = ("rdnet", "baf", "stcf", "gef", "raw")
+METHODS = ("rdnet", "baf", "stcf", "gef", "raw", "ednccn")
 
 
 @dataclass(frozen=True)
 class RestoreConfig:
     """``method``: rdnet (the learned restorer: image-guided when the recording has frames,
-    events-only otherwise), baf, stcf, gef (needs frames) or raw (copy, the reference).
+    events-only otherwise), baf, stcf, gef (needs frames), raw (copy, the reference) or
+    ednccn (the EDnCNN-style per-event classifier of :mod:`rdnet.restore.ednccn`).
     ``window_us``: length of the consecutive time windows the recording is restored in
     (a learned restorer may ask for its own). ``chunk_events``: events read at a time
     (memory bound). Filters (defaults = ``ablation.filters``): ``baf_dt_us``;
@@ -30,7 +31,7 @@ class RestoreConfig:
     the median of their 8 neighbours' and whose rate exceeds min_hz, and their events are
     dropped (:mod:`rdnet.restore.hotpixels`; factor 0: off)."""
 
-    method: Literal["rdnet", "baf", "stcf", "gef", "raw"] = "rdnet"
+    method: Literal["rdnet", "baf", "stcf", "gef", "raw", "ednccn"] = "rdnet"
     window_us: int = 50_000
     chunk_events: int = 1_000_000
     baf_dt_us: int = 10_000

@@ -127,11 +127,18 @@ def _pairs_mode(pairs_path: Path) -> tuple[int, str]:
 
 
 def event_filter(name: str, pairs_path: Path, events_dir: Path, cfg: FilterConfig,
-                 baf_dt_us: int = 10000, gef_bins: int = 5) -> _EventFilterTransform:
-    """The event-level baseline ``name`` (stcf, baf, gef) on the test events of each
+                 baf_dt_us: int = 10000, gef_bins: int = 5, checkpoint: Path | None = None,
+                 device: str = "cpu") -> _EventFilterTransform:
+    """The event-level baseline ``name`` (stcf, baf, gef, ednccn) on the test events of each
     sample's window (:class:`_EventFilterTransform`); GEF is
-    :class:`rdnet.restore.base.GefRestorer` (mask mode) guided by the sample's blurry frame."""
+    :class:`rdnet.restore.base.GefRestorer` (mask mode) guided by the sample's blurry frame;
+    ednccn is the per-event classifier of ``checkpoint`` (:mod:`rdnet.restore.ednccn`, on
+    ``device``) on each whole sequence."""
     bins, mode = _pairs_mode(pairs_path)
+    if name == "ednccn":
+        from rdnet.restore.ednccn import load_ednccn
+        clf = load_ednccn(checkpoint, device=device)
+        return _EventFilterTransform(pairs_path, events_dir, bins, mode, whole=clf.filter_stream)
     if name == "stcf":
         from rdnet.baselines.stcf import stcf_filter
         return _EventFilterTransform(pairs_path, events_dir, bins, mode, whole=lambda ev: stcf_filter(
@@ -318,11 +325,12 @@ def _event_entry(counts: np.ndarray, reference: np.ndarray, labels) -> dict:
 
 def restoration_table(cfg: AblationConfig, pairs_path: Path, events_dir: Path,
                       learned: dict | None = None, *, filters=("stcf", "gef", "baf", "gef_voxel"),
-                      seeds=(0,), baf_dt_us: int = 10000, gef_bins: int = 5) -> dict:
+                      seeds=(0,), baf_dt_us: int = 10000, gef_bins: int = 5, ednccn: Path | None = None) -> dict:
     """Restoration metrics against the undegraded events, per method: the raw degraded
     events (``degraded``), the event filters ``filters`` (STCF, BAF and GEF on the test
     events of each sample's window, :func:`event_filter`; ``gef_voxel``: the study's
-    voxel-level GEF, its voxels rounded to events) and every stage-1 network of
+    voxel-level GEF, its voxels rounded to events), the EDnCNN-style classifier of ``ednccn``
+    (a checkpoint or its folder, when given: :mod:`rdnet.restore.ednccn`) and every stage-1 network of
     ``learned`` (name -> network directory or ``.pt``: a RestoreNet, or an RDNet whose
     fine-tuned stage 1 is scored), seed by seed (seed mean, ``<metric>_std``).
 
@@ -369,6 +377,9 @@ def restoration_table(cfg: AblationConfig, pairs_path: Path, events_dir: Path,
         else:
             c = event_filter(name, pairs_path, events_dir, cfg.filters, baf_dt_us, gef_bins).counts(idx)
             entries[name] = [score(signed_counts(c).astype(np.float32), c)]
+    if ednccn is not None:
+        c = event_filter("ednccn", pairs_path, events_dir, cfg.filters, checkpoint=ednccn, device=cfg.device).counts(idx)
+        entries["ednccn"] = [score(signed_counts(c).astype(np.float32), c)]
     for name, ck in (learned or {}).items():
         entries[name] = []
         for s in seeds:
