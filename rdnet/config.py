@@ -39,6 +39,7 @@ SECTIONS: dict[str, str] = {
     "calibrate": "rdnet.calib.settings:CalibrateConfig",
     "deblur": "rdnet.deblur.config:DeblurConfig",
     "restore": "rdnet.restore.settings:RestoreConfig",
+    "ednccn": "rdnet.restore.ednccn:EdnccnConfig",
 }
 
 

@@ -2,7 +2,9 @@
 present but concealed (plus null cases), and score what it names (params: calibrate). The
 "real" events come from two generators: rdnet's own simulator (top-level metrics, and again
 with the true events simulated from 4x denser frames: block `oversample4`) and the
-independent circuit model of rdnet.circuit (block `circuit`)."""
+independent circuit model of rdnet.circuit (block `circuit`). Over all blocks, the
+reliability of the confidences (rdnet.calib.reliability: binned confidence, count, fraction
+right, ECE) goes to the metrics (`reliability`) and to `reliability.md`."""
 from pathlib import Path
 
 import _common
@@ -11,30 +13,34 @@ import _common
 def main(args, params):
     import numpy as np
 
-    from rdnet.calib.proof import cases_for, format_table, run_proof
+    from rdnet.calib import reliability as rel
+    from rdnet.calib.proof import cases_for, format_table, generator_dir, run_generators, run_proof
     from rdnet.config import section
+    from rdnet.eval.report import write_text_atomic
     from rdnet.sim.interpolate import InterpolateConfig
     cfg = section(params, "calibrate")
     interp = InterpolateConfig(max_upsample=cfg.max_upsample)
-    lists = cases_for(args.generator, args.quick)
+    # every generator from a fresh default_rng(seed): rdnet reports in args.out, circuit in args.out/circuit
+    runs = run_generators(args.out, args.seed, generator=args.generator, quick=args.quick, cfg=cfg,
+                          interpolate=interp, circuit_oversample=args.circuit_oversample)
+    blocks = {gen: (generator_dir(args.out, gen), m) for gen, m in runs.items()}
+    if "rdnet" in runs and args.oversample > 1:
+        # the truth from frames rendered denser: the calibration's own interpolation is imperfect
+        key = f"oversample{args.oversample}"
+        mo = run_proof(cases_for("rdnet", args.quick)["rdnet"], args.out / key, np.random.default_rng(args.seed),
+                       cfg=cfg, interpolate=interp, oversample=args.oversample)
+        blocks[key] = (args.out / key, mo)
     compact = {}
-    if "rdnet" in lists:
-        m = run_proof(lists["rdnet"], args.out, np.random.default_rng(args.seed), cfg=cfg, interpolate=interp)
-        (args.out / "proof.md").write_text(format_table(m) + "\n")
-        compact = _compact(m)
-        if args.oversample > 1:
-            # the truth from frames rendered denser: the calibration's own interpolation is imperfect
-            key = f"oversample{args.oversample}"
-            mo = run_proof(lists["rdnet"], args.out / key, np.random.default_rng(args.seed), cfg=cfg,
-                           interpolate=interp, oversample=args.oversample)
-            (args.out / key / "proof.md").write_text(format_table(mo) + "\n")
-            compact[key] = _compact(mo)
-    if "circuit" in lists:
-        # an independent sensor model (rdnet.circuit) makes the true events
-        mc = run_proof(lists["circuit"], args.out / "circuit", np.random.default_rng(args.seed), cfg=cfg,
-                       interpolate=interp, circuit_oversample=args.circuit_oversample)
-        (args.out / "circuit" / "proof.md").write_text(format_table(mc) + "\n")
-        compact["circuit"] = _compact(mc)
+    for key, (folder, m) in blocks.items():
+        write_text_atomic(folder / "proof.md", format_table(m) + "\n")
+        if key == "rdnet":
+            compact.update(_compact(m))
+        else:
+            compact[key] = _compact(m)
+    rows = [r for key, (folder, m) in blocks.items() for r in rel.block_rows(folder, m, key)]
+    result = rel.reliability(rows)
+    compact["reliability"] = rel.compact(result)
+    write_text_atomic(args.out / "reliability.md", rel.markdown(result, str(args.out)))
     _common.write_json(args.metrics, compact)
 
 

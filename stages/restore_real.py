@@ -1,7 +1,7 @@
 """Stage `restore_real`: every restore method (raw, baf, stcf, gef where the recording has
-frames, rdnet when the learned restorer is installed) over the real recordings of
-data/real and those of --shared that rdnet can read (others are skipped with a warning),
-scored without ground truth (params: restore, sensor).
+frames, rdnet when the learned restorer is installed, ednccn when models/ednccn is trained)
+over the real recordings of data/real and those of --shared that rdnet can read (others
+are skipped with a warning), scored without ground truth (params: restore, sensor).
 
 Per recording and method: events kept, ESR (E-MLB), event-frame consistency (with
 frames), and region fractions -- the share of the raw events kept inside the *activity
@@ -23,7 +23,10 @@ HOT_PIXELS = {"dvxplorer_person": [(187, 105), (204, 157), (241, 196), (307, 97)
 SENSOR_SIZE = {"ecd_shapes_subset": (240, 180)}
 MASK = {"sigma_px": 4.0, "rel_threshold": 0.25, "quantile": 0.999}
 SKIP = {".md", ".png", ".jpg", ".json", ".yaml", ".dvc"}
-METHODS = ("raw", "baf", "stcf", "gef", "rdnet")
+METHODS = ("raw", "baf", "stcf", "gef", "rdnet", "ednccn")
+#: Extra rows: (key, method, restore overrides, label suffix). The learned restorer without
+#: the hot-pixel pass shows what the network removes by itself.
+VARIANTS = (("rdnet_no_hot_pass", "rdnet", {"hot_pixel_factor": 0}, " (no hot-pixel pass)"),)
 
 
 def recordings(roots):
@@ -62,26 +65,29 @@ def score_recording(name, path, params, data_out, log):
              "duration_us": int(raw.t[-1] - raw.t[0]), "activity_mask_pixels": int(act.sum()),
              "activity_mask": dict(MASK), "hot_pixels": hot or [], "methods": {}}
     outs = {}
-    for method in METHODS:
+    runs = [(m, m, {}, "") for m in METHODS] + list(VARIANTS)
+    for key, method, overrides, suffix in runs:
         if method == "gef" and not entry["has_frames"]:
             continue
-        out = data_out / name / f"{method}.h5"
+        out = data_out / name / f"{key}.h5"
         out.parent.mkdir(parents=True, exist_ok=True)
+        run_params = {**params, "restore": {**params.get("restore", {}), **overrides}}
         try:
-            res = restore_recording(path, out, params, method=method, progress=False, sensor_size=size)
+            res = restore_recording(path, out, run_params, method=method, progress=False, sensor_size=size)
         except ConfigError as e:
-            log.warning("%s: method %s skipped: %s", name, method, e)
+            log.warning("%s: method %s skipped: %s", name, key, e)
             continue
         restored = load(out).events
-        outs[method] = restored
+        outs[key] = restored
         cons = res["scores"]["consistency"] or {}
-        entry["methods"][method] = {
-            "name": res["method"], "events_out": res["events_out"], "kept_fraction": res["kept_fraction"],
+        entry["methods"][key] = {
+            "name": res["method"] + suffix, "events_out": res["events_out"], "kept_fraction": res["kept_fraction"],
+            "hot_pixels_flagged": (res["hot_pixels"] or {}).get("count", 0),
             "esr": res["scores"]["esr"]["restored"],
             "consistency_r2": (cons.get("restored") or {}).get("r2_fitted"),
             "regions": {k: v["fraction"] for k, v in mask_fractions(raw, restored, masks).items()}}
         # (speed is not recorded here, so the committed summary is reproducible: bench_restore.py)
-        (data_out / name / f"{method}.summary.json").write_text(json.dumps(res, indent=2) + "\n")
+        (data_out / name / f"{key}.summary.json").write_text(json.dumps(res, indent=2) + "\n")
     return entry, rec, raw, outs, act
 
 
@@ -107,7 +113,7 @@ def figure(path, name, raw, outs, act):
 
 def table(summary):
     lines = ["| recording | method | events out | kept | ESR | consistency R^2 | activity kept | "
-             "background kept | hot pixels kept |", "|---|---|---|---|---|---|---|---|---|"]
+             "background kept | hot pixels kept | hot pixels flagged |", "|---|---|---|---|---|---|---|---|---|---|"]
 
     def f(v, pct=False):
         if v is None or v != v:
@@ -118,7 +124,8 @@ def table(summary):
             rg = r["regions"]
             lines.append(f"| {name} | {r['name']} | {r['events_out']:,} | {f(r['kept_fraction'], True)} | "
                          f"{f(r['esr'])} | {f(r['consistency_r2'])} | {f(rg.get('activity'), True)} | "
-                         f"{f(rg.get('background'), True)} | {f(rg.get('hot_pixels'), True)} |")
+                         f"{f(rg.get('background'), True)} | {f(rg.get('hot_pixels'), True)} | "
+                         f"{r.get('hot_pixels_flagged', 0)} |")
     return "\n".join(lines) + "\n"
 
 

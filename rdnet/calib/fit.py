@@ -554,14 +554,19 @@ class Candidate:
     vetoed: bool = False        # significant by its gain, but its own statistic did not move
 
 
+def _drop(before: np.ndarray, after: np.ndarray) -> tuple[float, float]:
+    """Mean drop of a per-seed discrepancy from ``before`` to ``after`` and its seed spread
+    (floored at SPREAD_FLOOR of ``before``'s mean, for events that do not depend on the seed:
+    a config without random effects simulated with ``calibrate.random_reference`` off)."""
+    gain = float((before - after).mean())
+    n = min(before.size, after.size)
+    seed_std = math.sqrt(0.5 * (before.var(ddof=1) + after.var(ddof=1))) if n > 1 else 0.0
+    return gain, float(max(seed_std, SPREAD_FLOOR * float(before.mean())))
+
+
 def _gain(before: Evaluation, after: Evaluation) -> tuple[float, float]:
-    """Mean held-out gain and the seed spread of the held-out discrepancy (floored at
-    SPREAD_FLOOR of it, for events that do not depend on the seed: a config without random
-    effects simulated with ``calibrate.random_reference`` off)."""
-    gain = float((before.held - after.held).mean())
-    n = min(before.held.size, after.held.size)
-    seed_std = math.sqrt(0.5 * (before.held.var(ddof=1) + after.held.var(ddof=1))) if n > 1 else 0.0
-    return gain, float(max(seed_std, SPREAD_FLOOR * before.held_mean))
+    """Mean held-out gain and the seed spread of the held-out discrepancy (:func:`_drop`)."""
+    return _drop(before.held, after.held)
 
 
 def score(cand: Candidate, before: Evaluation, cfg, ablated: Evaluation | None = None,
@@ -606,7 +611,7 @@ def score(cand: Candidate, before: Evaluation, cfg, ablated: Evaluation | None =
 
 def _signature(cand: Candidate, before: Evaluation, ablated: Evaluation | None) -> None:
     """The held-out term of the effect's own statistic (``Effect.statistic``) before and
-    after, and its drop in units of its seed spread (floored as in :func:`_gain`; the
+    after, and its drop in units of its seed spread (:func:`_drop`; the
     smaller drop against ``before`` and ``ablated``, as for the gain). An effect whose gain
     comes from other statistics than its own signature explains a structural difference
     between the models, not its physics (:data:`SIGNATURE_Z`)."""
@@ -615,16 +620,14 @@ def _signature(cand: Candidate, before: Evaluation, ablated: Evaluation | None) 
     if name not in after.held_terms or name not in before.held_terms:
         return
 
-    def drop(b: np.ndarray, a: np.ndarray) -> float:
-        g = float((b - a).mean())
-        n = min(b.size, a.size)
-        sd = math.sqrt(0.5 * (b.var(ddof=1) + a.var(ddof=1))) if n > 1 else 0.0
-        return g / max(sd, SPREAD_FLOOR * float(b.mean()), 1e-12)
+    def z_of(b: np.ndarray, a: np.ndarray) -> float:
+        g, sd = _drop(b, a)
+        return g / max(sd, 1e-12)
 
     a = after.held_terms[name]
-    z = drop(before.held_terms[name], a)
+    z = z_of(before.held_terms[name], a)
     if ablated is not None and name in ablated.held_terms:
-        z = min(z, drop(ablated.held_terms[name], a))
+        z = min(z, z_of(ablated.held_terms[name], a))
     cand.signature_before = float(before.held_terms[name].mean())
     cand.signature_after = float(a.mean())
     cand.signature_z = float(z)

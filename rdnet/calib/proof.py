@@ -335,14 +335,24 @@ def run_proof(cases: Sequence[ProofCase] | None, out_dir: str | Path | None, rng
     return metrics
 
 
+def generator_dir(out_dir: str | Path, generator: str) -> Path:
+    """Where :func:`run_generators` writes a generator's reports: ``out_dir`` for rdnet,
+    ``out_dir/<generator>`` otherwise."""
+    return Path(out_dir) if generator == "rdnet" else Path(out_dir) / generator
+
+
 def run_generators(out_dir: str | Path | None, seed: int, *, generator: str = "both", quick: bool = False,
-                   **kw) -> dict[str, dict]:
-    """:func:`run_proof` on the case lists of :func:`cases_for`, each generator from a fresh
+                   names: Sequence[str] | None = None, **kw) -> dict[str, dict]:
+    """:func:`run_proof` on the case lists of :func:`cases_for` (only the cases in ``names``
+    when given; a generator left without cases is skipped), each generator from a fresh
     ``default_rng(seed)`` (so the rdnet cases keep their results whatever else runs); the
-    rdnet reports go to ``out_dir``, the circuit ones to ``out_dir/circuit``."""
+    reports go to :func:`generator_dir`. ``kw``: further :func:`run_proof` arguments."""
     out = {}
     for gen, cases in cases_for(generator, quick).items():
-        d = None if out_dir is None else (Path(out_dir) if gen == "rdnet" else Path(out_dir) / "circuit")
+        cases = [c for c in cases if names is None or c.name in names]
+        if not cases:
+            continue
+        d = None if out_dir is None else generator_dir(out_dir, gen)
         out[gen] = run_proof(cases, d, np.random.default_rng(seed), **kw)
     return out
 
@@ -367,14 +377,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-upsample", type=int, default=16, help="interpolate.max_upsample of the scenes")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    interp = InterpolateConfig(max_upsample=args.max_upsample)
-    for gen, cases in cases_for(args.generator, args.quick).items():
-        cases = [c for c in cases if args.cases is None or c.name in args.cases]
-        if not cases:
-            continue
-        out = args.out if gen == "rdnet" else args.out / "circuit"
-        m = run_proof(cases, out, np.random.default_rng(args.seed), oversample=args.oversample,
-                      interpolate=interp, circuit_oversample=args.circuit_oversample)
+    runs = run_generators(args.out, args.seed, generator=args.generator, quick=args.quick, names=args.cases,
+                          oversample=args.oversample, interpolate=InterpolateConfig(max_upsample=args.max_upsample),
+                          circuit_oversample=args.circuit_oversample)
+    for gen, m in runs.items():
         print(f"generator {gen}:")
         print(format_table(m))
     return 0

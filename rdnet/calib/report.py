@@ -11,6 +11,7 @@ import numpy as np
 
 from rdnet.calib.calibrate import Calibration, finding
 from rdnet.calib.effects import EFFECTS
+from rdnet.calib.fit import SIGNATURE_Z
 from rdnet.calib.stats import IEI_EDGES, TAIL_BANDS
 from rdnet.errors import FormatError
 from rdnet.events.io._common import atomic_output
@@ -56,12 +57,16 @@ def markdown(cal: Calibration, figures: list[str]) -> str:
               f"other seeds): {d['heldout_noise_floor']:.3f}; excess over it {d['heldout_excess_before']:.3f} "
               f"-> {d['heldout_excess_after']:.3f}.", ""]
     lines += ["## Effects the base config leaves out", "",
-              "| effect | missing | confidence | rank | parameters | held-out gain | where |",
-              "|---|---|---|---|---|---|---|"]
+              "Own statistic: the held-out term of the statistic that reveals the effect, before -> after "
+              "adding it, and its drop in seed std (z; the signature gate needs > "
+              f"{SIGNATURE_Z:g} to name it).", "",
+              "| effect | missing | confidence | rank | parameters | held-out gain | own statistic | where |",
+              "|---|---|---|---|---|---|---|---|"]
     for e in r["effects"]:
         p = ", ".join(f"{k}={v:.4g}" for k, v in e["parameters"].items())
         lines.append(f"| {e['name']} | {'**yes**' if e['missing'] else 'no'} | {e['confidence']:.2f} | "
-                     f"{e.get('rank') or '-'} | {p} | {e.get('heldout_gain', 0):.3f} | {e['where']} |")
+                     f"{e.get('rank') or '-'} | {p} | {e.get('heldout_gain', 0):.3f} | {signature_cell(e)} | "
+                     f"{e['where']} |")
     lines += ["", "Evidence per effect:", ""]
     for e in r["effects"]:
         lines.append(f"- **{e['name']}**: {e['evidence']}")
@@ -106,6 +111,18 @@ def markdown(cal: Calibration, figures: list[str]) -> str:
     if figures:
         lines += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]
     return "\n".join(lines)
+
+
+def signature_cell(effect: dict) -> str:
+    """The "own statistic" cell of an effect of report.json: its statistic, the held-out
+    term before -> after (``effect["signature"]``), the z of the drop, and "vetoed" when the
+    signature gate turned a significant gain down; "-" for an effect never evaluated."""
+    sig = effect.get("signature")
+    if not sig:
+        return "-"
+    z = "" if sig["z"] is None else f" (z {sig['z']:.1f})"
+    return (f"{effect['statistic']} {_f(sig['heldout_before'])} -> {_f(sig['heldout_after'])}{z}"
+            + (", vetoed" if sig["vetoed"] else ""))
 
 
 def _f(v) -> str:

@@ -123,10 +123,10 @@ def from_degrade(sensor, degrade, **extra) -> CircuitParams:
 
 
 def pixel_parameters(n_pix: int, params: CircuitParams, rng: np.random.Generator
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per-pixel ``(theta_on, theta_off, leak rate per us, hot mask)``, drawn in a fixed order
-    (ON mismatch, OFF mismatch, leak spread, hot pixels) whatever is switched on, so one
-    seed gives the same pixels across configs."""
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-pixel ``(theta_on, theta_off, leak rate per us)`` (a hot pixel: its leak rate is
+    ``hot_pixel_hz``), drawn in a fixed order (ON mismatch, OFF mismatch, leak spread, hot
+    pixels) whatever is switched on, so one seed gives the same pixels across configs."""
     n_on = rng.standard_normal(n_pix)
     n_off = rng.standard_normal(n_pix)
     n_leak = rng.standard_normal(n_pix)
@@ -137,12 +137,10 @@ def pixel_parameters(n_pix: int, params: CircuitParams, rng: np.random.Generator
     d = params.leak_spread_decades
     spread = 10.0 ** (d * n_leak) / math.exp(0.5 * (d * math.log(10.0)) ** 2)   # mean 1
     leak = params.leak_hz * 1e-6 * spread
-    hot = np.zeros(n_pix, bool)
     n_hot = int(round(params.hot_pixel_fraction * n_pix))
     if n_hot and params.hot_pixel_hz > 0:
-        hot[order[:n_hot]] = True
-        leak = np.where(hot, params.hot_pixel_hz * 1e-6, leak)
-    return thr_on, thr_off, leak, hot
+        leak[order[:n_hot]] = params.hot_pixel_hz * 1e-6
+    return thr_on, thr_off, leak
 
 
 def _as_linear(images: np.ndarray) -> np.ndarray:
@@ -168,12 +166,11 @@ def generate(images: np.ndarray, t_us: np.ndarray, params: CircuitParams, rng: n
         raise ValidationError("frames/t", "need >= 2 frames with increasing timestamps")
     n, H, W = im.shape
     P = H * W
-    thr_on, thr_off, leak, _ = pixel_parameters(P, params, rng)
+    thr_on, thr_off, leak = pixel_parameters(P, params, rng)
     first = im[0].ravel()
     vp = np.log(first + params.i_dark)
     vs = vp.copy()
-    u0 = rng.random(P) if random_start else np.full(P, 0.5)
-    vmem = vs - (-thr_off + u0 * (thr_on + thr_off)) if random_start else vs.copy()
+    vmem = vs - (-thr_off + rng.random(P) * (thr_on + thr_off)) if random_start else vs.copy()
     wake = np.full(P, -np.inf)
     w_p = 2 * math.pi * params.photoreceptor_hz * 1e-6
     w_s = 2 * math.pi * params.follower_hz * 1e-6

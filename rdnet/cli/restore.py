@@ -28,7 +28,8 @@ def register(subparsers) -> None:
     p.add_argument("--method", choices=METHODS, default=None,
                    help="restorer (default: restore.method of params.yaml, rdnet)")
     p.add_argument("--checkpoint", type=Path, default=None,
-                   help="learned restorer checkpoint (method rdnet; default: the study's, else the packaged one)")
+                   help="learned restorer checkpoint (method rdnet; default: the study's, else the packaged one; "
+                        "method ednccn: default models/ednccn)")
     add_sensor_size_args(p)
     add_params_args(p)
     add_progress_arg(p)

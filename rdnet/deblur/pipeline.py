@@ -17,8 +17,9 @@ Windows (:class:`FrameWindows`):
 With a count-output stage 1 (``train.restore_output: counts``) the windows become
 per-polarity count grids (``voxel_grid(polarity="split")``, raw counts), stage 2 reads
 stage 1's signed expected counts, and the restored events are the counts the
-checkpoint's fitted decision keeps (:func:`rdnet.nn.decision.decided_events`, as
-``rdnet restore --method rdnet`` does).
+checkpoint's fitted decision keeps (the rule of :func:`rdnet.nn.decision.decided_events`,
+as ``rdnet restore --method rdnet`` applies it), decided on the heads of the stage-1 pass
+that gives the voxels (:func:`rdnet.eval.stage1.run_stage1`: stage 1 runs once per window).
 
 The *restored event stream* is stage 1's output over the interval windows, rounded to
 whole events (:func:`rdnet.events.voxel.voxel_events`); it covers the recording from the
@@ -37,10 +38,12 @@ import numpy as np
 import torch
 
 from rdnet.errors import FormatError, ValidationError
+from rdnet.eval.stage1 import signed_counts
 from rdnet.events.core import Events, concatenate
 from rdnet.events.recording import Frames
 from rdnet.events.voxel import normalization_scale, voxel_events, voxel_grid
 from rdnet.events.voxel_config import VoxelConfig
+from rdnet.nn.decision import polarity_grid, read_decision
 
 WINDOW_NOTES = {
     "exposure": "each frame's exposure window (frames/exposure_us)",
@@ -148,6 +151,15 @@ def run_rdnet(net, images: np.ndarray, voxels: np.ndarray, device: torch.device,
     counts for a count-output stage 1); ``restore_only`` runs stage 1 alone (deblurred
     None). The restored voxels are signed (n, bins, H, W) (expected ON - OFF counts for the
     count output). ValidationError when the sizes disagree."""
+    restored, sharp, _ = _run(net, images, voxels, device, restore_only=restore_only)
+    return restored, sharp
+
+
+def _run(net, images: np.ndarray, voxels: np.ndarray, device: torch.device, *, restore_only: bool = False,
+         decision: dict | None = None) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """:func:`run_rdnet` and, with ``decision``, the (n, 2, bins, H, W) restored events of
+    the same stage-1 pass (:func:`rdnet.eval.stage1.run_stage1`; None without)."""
+    from rdnet.eval.stage1 import run_stage1
     cfg = net.restore.config
     channels = net.restore.in_channels
     if images.ndim != 4 or voxels.ndim != 4:
@@ -164,9 +176,9 @@ def run_rdnet(net, images: np.ndarray, voxels: np.ndarray, device: torch.device,
     with torch.inference_mode():
         img = torch.from_numpy(np.ascontiguousarray(images, np.float32)).to(device)
         vox = torch.from_numpy(np.ascontiguousarray(voxels, np.float32)).to(device)
-        restored = net.restore.signed(net.restore(img, vox))
+        restored, events = run_stage1(net.restore, img, vox, decision)
         sharp = None if restore_only else net.stage2(img, restored, vox).float().cpu().numpy()
-        return restored.float().cpu().numpy(), sharp
+        return restored.float().cpu().numpy(), sharp, events
 
 
 @dataclass(frozen=True)
@@ -185,14 +197,6 @@ class DeblurBatch:
     raw_voxel: np.ndarray
     restored_voxel: np.ndarray
     deblur_window_events: np.ndarray
-
-
-def _decided(net, images: np.ndarray, grids: np.ndarray, decision, device) -> np.ndarray:
-    """(n, 2, bins, H, W) restored events of a count-output stage 1 (its decision applied)."""
-    from rdnet.nn.decision import decided_events
-    img = torch.from_numpy(np.ascontiguousarray(images, np.float32)).to(device)
-    return decided_events(net.restore, img, torch.from_numpy(np.ascontiguousarray(grids, np.float32)).to(device),
-                          decision)
 
 
 def _to_events(restored: np.ndarray, scales: np.ndarray, windows: FrameWindows, index: np.ndarray,
@@ -222,34 +226,37 @@ def iter_deblur(net, images: np.ndarray, events: Events, deblur_windows: FrameWi
     if split and voxel.normalize not in (None, "none"):
         raise ValidationError("voxel.normalize", "a count-output stage 1 reads raw per-polarity counts")
 
-    def stream(restored, grids, scales, windows, idx):
-        """Restored events of the windows: rounded signed voxels, or the decided counts."""
-        if split:
-            restored = _decided(net, images[idx], grids, decision, device)
-        return _to_events(restored, scales, windows, idx, voxel.mode)
+    if split:                            # a count-output stage 1 needs its fitted decision
+        read_decision(decision, "counts")
+    decide = decision if split else None  # the signed output's events: its voxels rounded
+
+    def stream(restored, decided, scales, windows, idx):
+        """Restored events of the windows: rounded signed voxels, or the decided counts
+        (of the same stage-1 pass)."""
+        return _to_events(decided if split else restored, scales, windows, idx, voxel.mode)
 
     def signed(grids):                   # the raw signed voxels of the figures
         if not split:
             return grids
-        g = grids.reshape(grids.shape[0], 2, -1, H, W)
-        return g[:, 0] - g[:, 1]
+        return signed_counts(polarity_grid(grids))
 
     with tqdm(total=n, desc="deblur", unit="frame", disable=(not progress) or None) as bar:
         for s in range(0, n, batch_size):
             idx = np.arange(s, min(n, s + batch_size))
             img = images[idx]
             grids, scales = window_voxels(events, deblur_windows, idx, voxel, H, W, split=split)
-            restored, sharp = run_rdnet(net, img, grids / scales[:, None, None, None], device)
+            restored, sharp, decided = _run(net, img, grids / scales[:, None, None, None], device,
+                                            decision=decide)
             if same:
-                raw_e, scales_e, restored_e, deblur_events = grids, scales, restored, None
+                raw_e, scales_e, restored_e, decided_e, deblur_events = grids, scales, restored, decided, None
             else:
-                deblur_events = stream(restored, grids, scales, deblur_windows, idx)
+                deblur_events = stream(restored, decided, scales, deblur_windows, idx)
                 raw_e, scales_e = window_voxels(events, event_windows, idx, voxel, H, W, split=split)
-                restored_e, _ = run_rdnet(net, img, raw_e / scales_e[:, None, None, None], device,
-                                          restore_only=True)
+                restored_e, _, decided_e = _run(net, img, raw_e / scales_e[:, None, None, None], device,
+                                                restore_only=True, decision=decide)
             bar.update(idx.size)
             yield DeblurBatch(index=idx, deblurred=np.clip(sharp, 0.0, 1.0),
-                              events=stream(restored_e, raw_e, scales_e, event_windows, idx),
+                              events=stream(restored_e, decided_e, scales_e, event_windows, idx),
                               deblur_events=deblur_events, raw_voxel=signed(raw_e),
                               restored_voxel=restored_e * scales_e[:, None, None, None],
                               deblur_window_events=counts[idx])

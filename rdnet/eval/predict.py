@@ -17,7 +17,9 @@ signed expected counts (what stage 2 reads). With the checkpoint's voxel -> even
 decision (:func:`stage1_decision`) the predictions also hold ``restored_counts``: the
 restored *events* as (n, 2, bins, H, W) ON/OFF counts (the fitted occupancy threshold
 for the count output, ``round`` for the signed one), scored by
-:func:`rdnet.eval.events.match_metrics` against ``counts_undegraded``.
+:func:`rdnet.eval.events.match_metrics` against ``counts_undegraded``. The restored
+voxels and events come from one stage-1 pass (:func:`rdnet.eval.stage1.run_stage1`), and
+a checkpoint file is read once per call (``loaded``: not at all).
 
 ``voxel_transform(voxels, index) -> voxels`` (optional) replaces the input voxels of a
 batch before the network sees them: ``voxels`` (n, B, H, W) float32 numpy, ``index``
@@ -28,7 +30,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Callable, Iterator, Sequence
+from typing import Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -52,24 +54,36 @@ def _device(name: str | torch.device) -> torch.device:
 
 
 def load_method(kind: str, checkpoint: str | Path | None, pairs_path: str | Path,
-                device: str | torch.device = "cpu"):
+                device: str | torch.device = "cpu", *, loaded: Mapping | None = None):
     """The network of ``checkpoint`` for method ``kind``, checked against the pairs
-    file (kind, voxel bins, image channels); None for ``blurry``."""
+    file (kind, voxel bins, image channels); None for ``blurry``. ``loaded``: the
+    checkpoint dict already read from ``checkpoint``
+    (:func:`rdnet.train.checkpoint.read_checkpoint`): the file is then not read again."""
+    return _load(kind, checkpoint, pairs_path, device, loaded)[0]
+
+
+def _load(kind, checkpoint, pairs_path, device, loaded) -> tuple:
+    """(model, checkpoint dict) of :func:`load_method` ((None, None) for ``blurry``),
+    the checkpoint file read at most once (not at all with ``loaded``)."""
     if kind not in METHODS:
         raise ConfigError("method", f"unknown method {kind!r}; known: {', '.join(METHODS)}")
     if METHODS[kind] is None:
         if checkpoint is not None:
             raise ConfigError("checkpoint", f"method {kind!r} takes no checkpoint")
-        return None
+        return None, None
     if checkpoint is None:
         raise ConfigError("checkpoint", f"method {kind!r} needs a checkpoint")
-    from rdnet.train.checkpoint import load_model, read_checkpoint
+    from rdnet.train.checkpoint import check_compatible, model_from_checkpoint, read_checkpoint
     info = read_pairs_info(pairs_path)
+    ck = read_checkpoint(checkpoint) if loaded is None else loaded
     channels = info.channels
-    if kind == "restore" and int(read_checkpoint(checkpoint)["model_args"].get("image_channels", 1)) == 0:
+    if kind == "restore" and int(ck["model_args"].get("image_channels", 1)) == 0:
         channels = 0                                   # an events-only restorer (task restore_events)
-    return load_model(checkpoint, expected_kind=METHODS[kind], device=_device(device),
-                      bins=info.bins, image_channels=channels)
+    # rdnet.train.checkpoint.load_model, on the dict already read
+    check_compatible(checkpoint, ck, expected_kind=METHODS[kind], bins=info.bins, image_channels=channels)
+    model = model_from_checkpoint(checkpoint, ck, _device(device))
+    model.eval()
+    return model, ck
 
 
 def stage1_of(kind: str, model):
@@ -79,12 +93,13 @@ def stage1_of(kind: str, model):
     return model.restore if kind == "rdnet" else model if kind == "restore" else None
 
 
-def stage1_decision(checkpoint: str | Path) -> dict:
+def stage1_decision(checkpoint: str | Path, *, loaded: Mapping | None = None) -> dict:
     """The voxel -> event decision stored with a stage-1 or RDNet checkpoint
-    (:func:`rdnet.nn.decision.read_decision`: rounding for the signed output)."""
+    (:func:`rdnet.nn.decision.read_decision`: rounding for the signed output);
+    ``loaded``: the checkpoint dict already read (the file is then not read)."""
     from rdnet.nn.decision import read_decision
     from rdnet.train.checkpoint import read_checkpoint
-    ck = read_checkpoint(checkpoint)
+    ck = read_checkpoint(checkpoint) if loaded is None else loaded
     args = ck["model_args"]
     output = args.get("restore_output", "signed")
     return read_decision(ck.get("extra", {}).get("decision"), output)
@@ -103,7 +118,7 @@ def iter_predictions(kind: str, model, pairs_path: str | Path, events: str = "de
     import h5py
     from tqdm.auto import tqdm
 
-    from rdnet.nn.decision import decided_events
+    from rdnet.eval.stage1 import run_stage1
     if kind not in METHODS:
         raise ConfigError("method", f"unknown method {kind!r}; known: {', '.join(METHODS)}")
     if events not in EVENT_KINDS:
@@ -159,18 +174,17 @@ def iter_predictions(kind: str, model, pairs_path: str | Path, events: str = "de
                     v = torch.from_numpy(c.reshape(c.shape[0], -1, *c.shape[3:]).astype(np.float32)).to(dev)
                 if stage1 is not None and not stage1.image_channels:
                     img = None                             # events-only restorer
-                if kind == "rdnet":
-                    restored, pred = model(img, v)
+                if stage1 is not None:                     # rdnet, restore: one stage-1 pass
+                    restored, counts = run_stage1(stage1, img, v, decision)
                     b["restored"] = restored.float().cpu().numpy()
-                    b["pred"] = pred.float().cpu().numpy()
-                elif kind == "restore":
-                    b["restored"] = model.signed(model(img, v)).float().cpu().numpy()
+                    if kind == "rdnet":                    # what RDNet.forward does after stage 1
+                        b["pred"] = model.stage2(img, restored, v).float().cpu().numpy()
+                    if counts is not None:
+                        b["restored_counts"] = counts
                 elif kind == "image_only":
                     b["pred"] = model(img, None).float().cpu().numpy()
                 else:
                     b["pred"] = model(img, v).float().cpu().numpy()
-                if decision is not None:
-                    b["restored_counts"] = decided_events(stage1, img, v, decision)
             bar.update(idx.size)
             yield b
     bar.close()
@@ -179,13 +193,14 @@ def iter_predictions(kind: str, model, pairs_path: str | Path, events: str = "de
 def predict(kind: str, checkpoint: str | Path | None, pairs_path: str | Path, events: str = "degraded",
             *, indices: Sequence[int] | None = None, voxel_transform: VoxelTransform | None = None,
             batch_size: int = 4, device: str | torch.device = "cpu", progress: bool = False,
-            events_out: bool = False) -> dict:
+            events_out: bool = False, loaded: Mapping | None = None) -> dict:
     """All predictions of method ``kind`` for the rows ``indices`` (all rows by default),
     concatenated into arrays (see :func:`iter_predictions`; ``events_out``: with
-    ``restored_counts``, the checkpoint's decision applied). For figures and small sets;
-    :func:`evaluate_row` streams instead."""
-    model = load_method(kind, checkpoint, pairs_path, device)
-    decision = stage1_decision(checkpoint) if events_out else None
+    ``restored_counts``, the checkpoint's decision applied). ``loaded``: the checkpoint
+    dict already read from ``checkpoint`` (otherwise the file is read here, once). For
+    figures and small sets; :func:`evaluate_row` streams instead."""
+    model, ck = _load(kind, checkpoint, pairs_path, device, loaded)
+    decision = stage1_decision(checkpoint, loaded=ck) if events_out else None
     parts = list(iter_predictions(kind, model, pairs_path, events, voxel_transform=voxel_transform,
                                   batch_size=batch_size, device=device, indices=indices,
                                   progress=progress, decision=decision))

@@ -129,21 +129,24 @@ class GefRestorer:
 
 def get_restorer(method: str, params: Mapping, checkpoint=None, *, has_frames: bool) -> Restorer:
     """The restorer of ``method`` with the settings of ``params`` (the params.yaml dict;
-    its ``restore`` section); ``checkpoint`` is only for ``rdnet``. Raises
+    its ``restore`` section); ``checkpoint`` is only for ``rdnet`` and ``ednccn``. Raises
     :class:`ConfigError` for an unknown method, a missing learned restorer, and gef
     without frames."""
     from rdnet.config import section
     cfg: RestoreConfig = section(params, "restore")
     if method not in METHODS:
         raise ConfigError("restore.method", f"unknown method {method!r}; use one of {', '.join(METHODS)}")
-    if checkpoint is not None and method != "rdnet":
-        raise ConfigError("checkpoint", f"--checkpoint is for --method rdnet, not {method}")
+    if checkpoint is not None and method not in ("rdnet", "ednccn"):
+        raise ConfigError("checkpoint", f"--checkpoint is for --method rdnet or ednccn, not {method}")
     if method == "raw":
         return RawRestorer()
     if method == "baf":
         return BafRestorer(cfg)
     if method == "stcf":
         return StcfRestorer(cfg)
+    if method == "ednccn":
+        from rdnet.restore.ednccn import load_ednccn
+        return load_ednccn(checkpoint, device=cfg.device)
     if method == "gef":
         if not has_frames:
             raise ConfigError("restore.method", "gef is image-guided and the recording has no frames; "

@@ -15,6 +15,9 @@ the recording has them) and OUT.json beside it (OUT with suffix ``.json``):
   (:func:`rdnet.eval.noref.esr_score`, higher = more structured) and, with frames,
   ``consistency`` (:mod:`rdnet.deblur.consistency`: event-frame consistency, higher is
   better; null with a note when the raw stream has more than ``score_max_events``),
+* ``hot_pixels``: the pixels the hot-pixel pass flagged (:mod:`rdnet.restore.hotpixels`;
+  every method but raw): ``factor``, ``min_rate_hz``, ``count``, ``pixels`` ([x, y], the
+  first 1,000) and ``events_dropped``,
 * ``settings``: the ``restore`` section used.
 
 Both files are written atomically: on any error neither exists afterwards (an older
@@ -92,6 +95,14 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
         if restorer.needs_frames and not has_frames:
             raise FormatError(recording, "frames", f"method {restorer.name} needs frames; the recording has none")
         window_us = int(restorer.window_us or cfg.window_us)
+        hot = None
+        if method != "raw" and cfg.hot_pixel_factor > 0:
+            from rdnet.restore.hotpixels import hot_pixels, pixel_counts
+            counts, dur = pixel_counts(src.chunks(cfg.chunk_events), src.width, src.height)
+            hot = hot_pixels(counts, dur, cfg.hot_pixel_factor, cfg.hot_pixel_min_hz)
+            log.info("hot-pixel pass: %d pixels flagged (factor %g, min %g Hz)", int(hot.sum()),
+                     cfg.hot_pixel_factor, cfg.hot_pixel_min_hz)
+        n_hot = 0
         grey = frames.grey() if has_frames else None
         esr_raw = EsrAccumulator(src.width, src.height, cfg.esr_interval_us)
         esr_out = EsrAccumulator(src.width, src.height, cfg.esr_interval_us)
@@ -109,7 +120,12 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                      disable=(not progress) or None) as bar:
             for t0, t1, ev in windows(src.chunks(cfg.chunk_events), window_us, path=recording):
                 frame = nearest_frame(frames, (t0 + t1) // 2, grey) if has_frames else None
-                res = restorer.restore(ev, t0, t1, frame)
+                kept = ev
+                if hot is not None:
+                    from rdnet.restore.hotpixels import drop_pixels
+                    kept = drop_pixels(ev, hot)
+                    n_hot += len(ev) - len(kept)
+                res = restorer.restore(kept, t0, t1, frame)
                 pending.append(res)
                 n_pending += len(res)
                 if n_pending >= cfg.chunk_events:          # few large HDF5 appends, memory bounded
@@ -160,7 +176,12 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                 "windows": n_win, "window_us": window_us, "duration_us": duration,
                 "seconds": seconds, "cpu_seconds": cpu_seconds, "events_per_s": n_in / seconds if seconds > 0 else None,
                 "realtime_factor": (duration * 1e-6) / seconds if seconds > 0 else None,
-                "scores": scores, "notes": notes, "settings": {**to_dict(cfg), "method": method}}
+                "scores": scores, "notes": notes,
+                "hot_pixels": None if hot is None else {
+                    "factor": cfg.hot_pixel_factor, "min_rate_hz": cfg.hot_pixel_min_hz, "count": int(hot.sum()),
+                    "pixels": [[int(x), int(y)] for y, x in zip(*np.nonzero(hot))][:1000],
+                    "events_dropped": n_hot},
+                "settings": {**to_dict(cfg), "method": method}}
             result = _jsonable(result)
             json_tmp.write_text(json.dumps(result, indent=2) + "\n")
     log.info("restored %d -> %d events with %s", n_in, n_out, restorer.name)

@@ -7,13 +7,14 @@ from typing import Literal
 from rdnet.config import positive
 from rdnet.errors import ConfigError
 
-METHODS = ("rdnet", "baf", "stcf", "gef", "raw")
+METHODS = ("rdnet", "baf", "stcf", "gef", "raw", "ednccn")
 
 
 @dataclass(frozen=True)
 class RestoreConfig:
     """``method``: rdnet (the learned restorer: image-guided when the recording has frames,
-    events-only otherwise), baf, stcf, gef (needs frames) or raw (copy, the reference).
+    events-only otherwise), baf, stcf, gef (needs frames), raw (copy, the reference) or
+    ednccn (the EDnCNN-style per-event classifier of :mod:`rdnet.restore.ednccn`).
     ``window_us``: length of the consecutive time windows the recording is restored in
     (a learned restorer may ask for its own). ``chunk_events``: events read at a time
     (memory bound). Filters (defaults = ``ablation.filters``): ``baf_dt_us``;
@@ -25,9 +26,12 @@ class RestoreConfig:
     of the ESR no-reference score (E-MLB uses 33 ms); ``scores``: compute the no-reference
     scores at all (false: faster, OUT.json has counts only); ``score_max_events``: event-frame
     consistency is scored only when the raw stream has at most this many events (it holds
-    both streams in memory)."""
+    both streams in memory). ``hot_pixel_factor``/``hot_pixel_min_hz``: before every method
+    but raw, one pass over the recording flags the pixels whose event count exceeds factor x
+    the median of their 8 neighbours' and whose rate exceeds min_hz, and their events are
+    dropped (:mod:`rdnet.restore.hotpixels`; factor 0: off)."""
 
-    method: Literal["rdnet", "baf", "stcf", "gef", "raw"] = "rdnet"
+    method: Literal["rdnet", "baf", "stcf", "gef", "raw", "ednccn"] = "rdnet"
     window_us: int = 50_000
     chunk_events: int = 1_000_000
     baf_dt_us: int = 10_000
@@ -44,6 +48,8 @@ class RestoreConfig:
     esr_interval_us: int = 33_000
     scores: bool = True
     score_max_events: int = 5_000_000
+    hot_pixel_factor: float = 20.0
+    hot_pixel_min_hz: float = 100.0
 
     def __post_init__(self):
         for key in ("window_us", "chunk_events", "baf_dt_us", "stcf_tau_us", "stcf_k", "stcf_radius",
@@ -51,6 +57,8 @@ class RestoreConfig:
             positive(f"restore.{key}", getattr(self, key), allow_zero=False)
         positive("restore.gef_eps", self.gef_eps, allow_zero=False)
         positive("restore.score_max_events", self.score_max_events)
+        positive("restore.hot_pixel_factor", self.hot_pixel_factor)
+        positive("restore.hot_pixel_min_hz", self.hot_pixel_min_hz)
         if self.method not in METHODS:
             raise ConfigError("restore.method", f"must be one of {list(METHODS)}, got {self.method!r}")
         if self.gef_mode not in ("mask", "filter"):

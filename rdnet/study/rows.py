@@ -116,7 +116,8 @@ class _EventFilterTransform:
         return np.stack([np.rint(self.split(int(i))) for i in index]).astype(np.int64)
 
     def __call__(self, voxels: np.ndarray, index: np.ndarray) -> np.ndarray:
-        return np.stack([(lambda g: g[0] - g[1])(self.split(int(i))) for i in index])
+        from rdnet.eval.stage1 import signed_counts
+        return np.stack([signed_counts(self.split(int(i))) for i in index])
 
 
 def _pairs_mode(pairs_path: Path) -> tuple[int, str]:
@@ -126,11 +127,18 @@ def _pairs_mode(pairs_path: Path) -> tuple[int, str]:
 
 
 def event_filter(name: str, pairs_path: Path, events_dir: Path, cfg: FilterConfig,
-                 baf_dt_us: int = 10000, gef_bins: int = 5) -> _EventFilterTransform:
-    """The event-level baseline ``name`` (stcf, baf, gef) on the test events of each
+                 baf_dt_us: int = 10000, gef_bins: int = 5, checkpoint: Path | None = None,
+                 device: str = "cpu") -> _EventFilterTransform:
+    """The event-level baseline ``name`` (stcf, baf, gef, ednccn) on the test events of each
     sample's window (:class:`_EventFilterTransform`); GEF is
-    :class:`rdnet.restore.base.GefRestorer` (mask mode) guided by the sample's blurry frame."""
+    :class:`rdnet.restore.base.GefRestorer` (mask mode) guided by the sample's blurry frame;
+    ednccn is the per-event classifier of ``checkpoint`` (:mod:`rdnet.restore.ednccn`, on
+    ``device``) on each whole sequence."""
     bins, mode = _pairs_mode(pairs_path)
+    if name == "ednccn":
+        from rdnet.restore.ednccn import load_ednccn
+        clf = load_ednccn(checkpoint, device=device)
+        return _EventFilterTransform(pairs_path, events_dir, bins, mode, whole=clf.filter_stream)
     if name == "stcf":
         from rdnet.baselines.stcf import stcf_filter
         return _EventFilterTransform(pairs_path, events_dir, bins, mode, whole=lambda ev: stcf_filter(
@@ -172,12 +180,13 @@ class _RestoreTransform:
     def __init__(self, pairs_path: Path, checkpoint: Path, batch_size: int, device: str):
         from rdnet.eval.predict import predict
         from rdnet.train.checkpoint import read_checkpoint
-        kind = read_checkpoint(checkpoint)["model_kind"]
+        ck = read_checkpoint(checkpoint)                  # read once: predict reuses it
+        kind = ck["model_kind"]
         if kind not in ("rdnet", "restore"):
             from rdnet.errors import FormatError
             raise FormatError(checkpoint, "model_kind", f"filter rdnet needs an RDNet or restore checkpoint, got {kind!r}")
         self.restored = predict(kind, checkpoint, pairs_path, "degraded", batch_size=batch_size,
-                                device=device)["restored"]
+                                device=device, loaded=ck)["restored"]
 
     def __call__(self, voxels: np.ndarray, index: np.ndarray) -> np.ndarray:
         return self.restored[np.asarray(index)]
@@ -316,11 +325,12 @@ def _event_entry(counts: np.ndarray, reference: np.ndarray, labels) -> dict:
 
 def restoration_table(cfg: AblationConfig, pairs_path: Path, events_dir: Path,
                       learned: dict | None = None, *, filters=("stcf", "gef", "baf", "gef_voxel"),
-                      seeds=(0,), baf_dt_us: int = 10000, gef_bins: int = 5) -> dict:
+                      seeds=(0,), baf_dt_us: int = 10000, gef_bins: int = 5, ednccn: Path | None = None) -> dict:
     """Restoration metrics against the undegraded events, per method: the raw degraded
     events (``degraded``), the event filters ``filters`` (STCF, BAF and GEF on the test
     events of each sample's window, :func:`event_filter`; ``gef_voxel``: the study's
-    voxel-level GEF, its voxels rounded to events) and every stage-1 network of
+    voxel-level GEF, its voxels rounded to events), the EDnCNN-style classifier of ``ednccn``
+    (a checkpoint or its folder, when given: :mod:`rdnet.restore.ednccn`) and every stage-1 network of
     ``learned`` (name -> network directory or ``.pt``: a RestoreNet, or an RDNet whose
     fine-tuned stage 1 is scored), seed by seed (seed mean, ``<metric>_std``).
 
@@ -332,6 +342,7 @@ def restoration_table(cfg: AblationConfig, pairs_path: Path, events_dir: Path,
     per dominant degradation. Event metrics need the pairs file's per-polarity voxels."""
     from rdnet.eval import metrics as M
     from rdnet.eval.predict import predict
+    from rdnet.eval.stage1 import signed_counts
     from rdnet.study.config import seed_checkpoint
     from rdnet.train.checkpoint import read_checkpoint
     import h5py
@@ -365,14 +376,18 @@ def restoration_table(cfg: AblationConfig, pairs_path: Path, events_dir: Path,
             entries[name] = [score(v, polarity_grid(split_signed(np.rint(v)).astype(np.int64)))]
         else:
             c = event_filter(name, pairs_path, events_dir, cfg.filters, baf_dt_us, gef_bins).counts(idx)
-            entries[name] = [score((c[:, 0] - c[:, 1]).astype(np.float32), c)]
+            entries[name] = [score(signed_counts(c).astype(np.float32), c)]
+    if ednccn is not None:
+        c = event_filter("ednccn", pairs_path, events_dir, cfg.filters, checkpoint=ednccn, device=cfg.device).counts(idx)
+        entries["ednccn"] = [score(signed_counts(c).astype(np.float32), c)]
     for name, ck in (learned or {}).items():
         entries[name] = []
         for s in seeds:
             path = seed_checkpoint(ck, s)
-            kind = "rdnet" if read_checkpoint(path)["model_kind"] == "rdnet" else "restore"
+            loaded = read_checkpoint(path)               # read once: predict reuses it
+            kind = "rdnet" if loaded["model_kind"] == "rdnet" else "restore"
             pr = predict(kind, path, pairs_path, "degraded", batch_size=cfg.batch_size, device=cfg.device,
-                         events_out=has_counts)
+                         events_out=has_counts, loaded=loaded)
             entries[name].append(score(pr["restored"], pr.get("restored_counts")))
             del pr
     out = {}

@@ -23,8 +23,8 @@ log = logging.getLogger(__name__)
 def stress_test(params: dict, scenes: Path, interp: Path, work: Path, *, progress: bool = True) -> dict:
     """``{"scales": [...], "rows": {row: [{"scale", "psnr", "psnr_std", "psnr_seeds", "ssim"}]},
     "restoration": {method: [{"scale", "voxel_l1", ..., "events_f1", "events_precision", ...}]}}``
-    (methods of :func:`rdnet.study.rows.restoration_table`: raw, the event filters and the
-    study's stage-1 networks present under ``models/``); the simulated test sets go to
+    (methods of :func:`rdnet.study.rows.restoration_table`: raw, the event filters, the
+    EDnCNN-style classifier and the study's stage-1 networks present under ``models/``); the simulated test sets go to
     ``work/scale_<s>/``."""
     from tqdm import tqdm
     from rdnet.study.data import make_pairs, simulate_sequences
@@ -37,6 +37,8 @@ def stress_test(params: dict, scenes: Path, interp: Path, work: Path, *, progres
     restore = section(params, "restore")
     # the stage-1 networks of the study that exist (a partial study scores what it has)
     learned = {k: Path(v) for k, v in LEARNED_RESTORERS.items() if Path(v).exists()}
+    from rdnet.restore.ednccn import STUDY_MODEL as ednccn
+    ednccn = ednccn if ednccn.exists() else None         # the per-event classifier baseline, when trained
     out = {"scales": list(study.stress_scales), "rows": {r: [] for r in rows}, "restoration": {}}
     for s in tqdm(study.stress_scales, desc="stress", disable=not progress or None):
         d = Path(work) / f"scale_{s:g}"
@@ -48,7 +50,7 @@ def stress_test(params: dict, scenes: Path, interp: Path, work: Path, *, progres
             out["rows"][rid].append({"scale": s, **{k: r[k] for k in ("psnr", "psnr_std", "ssim") if k in r},
                                      "psnr_seeds": r.get("psnr_seeds", [])})
         rest = restoration_table(ablation, pairs, d / "events" / "test", learned, seeds=study.seeds,
-                                 baf_dt_us=restore.baf_dt_us, gef_bins=restore.gef_bins)
+                                 baf_dt_us=restore.baf_dt_us, gef_bins=restore.gef_bins, ednccn=ednccn)
         for name, m in rest.items():
             ev = {f"events_{k}": v for k, v in m.get("events", {}).items() if isinstance(v, (int, float))}
             out["restoration"].setdefault(name, []).append(

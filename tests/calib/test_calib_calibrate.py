@@ -9,7 +9,7 @@ import pytest
 from rdnet.calib.calibrate import calibrate, finding
 from rdnet.calib.effects import EFFECTS, absent_effects
 from rdnet.calib.proof import case_metrics
-from rdnet.calib.report import write_report
+from rdnet.calib.report import signature_cell, write_report
 from rdnet.config import from_dict
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
@@ -83,6 +83,12 @@ def test_report_schema_and_files(hot_cal, tmp_path):
                                                 ("fit_before", "fit_after", "heldout_before", "heldout_after"))
     md = (tmp_path / "out" / "report.md").read_text()
     assert md.splitlines()[2].startswith("The simulator is missing hot pixels")
+    # the named effect's row shows its own statistic before -> after, as in report.json
+    hot = next(e for e in r["effects"] if e["name"] == "hot_pixels")
+    sig = hot["signature"]
+    assert hot["statistic"] == EFFECTS["hot_pixels"].statistic and sig["heldout_after"] < sig["heldout_before"]
+    row = next(ln for ln in md.splitlines() if ln.startswith("| hot_pixels |"))
+    assert f"| {hot['statistic']} {sig['heldout_before']:.3f} -> {sig['heldout_after']:.3f} (z " in row
     # the frame interpolation is a nuisance choice: the recording's events were simulated
     # from linearly blended frames, and that is the method the basic refit keeps
     fi = r["frame_interpolation"]
@@ -122,3 +128,15 @@ def test_contexts_built_side_by_side_equal_sequential_builds(hot_recording):
     for i, icfg in enumerate(interps):
         ref = build_context(rec, cfg, calib_cases.SENSOR.log_eps, interpolate=icfg, source="test")
         assert np.array_equal(got[i].sim_images, ref.sim_images) and np.array_equal(got[i].sim_t, ref.sim_t)
+
+
+def test_signature_cell_known_values():
+    e = {"statistic": "lag", "signature": {"heldout_before": 1.23456, "heldout_after": 0.2, "z": 8.04,
+                                           "vetoed": False}}
+    assert signature_cell(e) == "lag 1.235 -> 0.200 (z 8.0)"
+    e["signature"] = {"heldout_before": 0.5, "heldout_after": 0.5, "z": -0.3, "vetoed": True}
+    assert signature_cell(e) == "lag 0.500 -> 0.500 (z -0.3), vetoed"
+    # a statistic the recording lacks (NaN in the report: None); an effect never evaluated
+    e["signature"] = {"heldout_before": None, "heldout_after": None, "z": None, "vetoed": False}
+    assert signature_cell(e) == "lag - -> -"
+    assert signature_cell({"statistic": "lag", "signature": None}) == "-"

@@ -71,3 +71,26 @@ def test_same_case_same_recording():
     a, _ = make_recording(case, SPEC, SensorConfig(), np.random.default_rng(5))
     b, _ = make_recording(case, SPEC, SensorConfig(), np.random.default_rng(5))
     assert a.events.array.tobytes() == b.events.array.tobytes()
+
+
+def test_run_generators_fresh_rng_per_generator_folders_and_names(monkeypatch, tmp_path):
+    """The one loop of the stage and of ``python -m rdnet.calib.proof`` (run_proof stubbed)."""
+    import rdnet.calib.proof as proof
+    calls = []
+
+    def fake(cases, out_dir, rng, **kw):
+        calls.append(([c.name for c in cases], out_dir, int(rng.integers(1 << 30)), kw))
+        return {"cases": [], "summary": {}}
+
+    monkeypatch.setattr(proof, "run_proof", fake)
+    out = proof.run_generators(tmp_path, 5, quick=True, interpolate="i")
+    assert list(out) == ["rdnet", "circuit"]
+    (rn, rd, r1, kw), (cn, cd, r2, _) = calls
+    assert rn == [c.name for c in cases_for("rdnet", True)["rdnet"]] and cn == [
+        c.name for c in cases_for("circuit", True)["circuit"]]
+    assert (rd, cd) == (tmp_path, tmp_path / "circuit") and kw == {"interpolate": "i"}
+    assert r1 == r2 == int(np.random.default_rng(5).integers(1 << 30))       # each from default_rng(seed)
+    calls.clear()
+    # only the named cases; a generator left without any is skipped; no folder without out_dir
+    out = proof.run_generators(None, 5, names=["null_thresholds"])
+    assert list(out) == ["rdnet"] and calls[0][:2] == (["null_thresholds"], None)

@@ -1,19 +1,14 @@
-"""The reliability table of benchmarks/calib_reliability.py on hand-made inputs with known answers."""
+"""The reliability table of rdnet.calib.reliability (the calibration_proof stage's metrics and
+benchmarks/calib_reliability.py) on hand-made inputs with known answers."""
 from __future__ import annotations
 
 import copy
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
 
+from rdnet.calib import reliability as rel
 from rdnet.errors import FormatError
-
-ROOT = Path(__file__).resolve().parents[2]
-_spec = importlib.util.spec_from_file_location("calib_reliability", ROOT / "benchmarks" / "calib_reliability.py")
-rel = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(rel)
 
 
 def _effect(name, confidence, missing=False, evaluated=True):
@@ -81,7 +76,7 @@ def test_load_rows_reads_every_block(tmp_path):
     assert [(r["case"], r["effect"]) for r in s["named_wrong"]] == [("null", "latency")]
     assert [(r["case"], r["effect"]) for r in s["missed"]] == [("bw", "bandwidth")]
     assert (s["named_only"]["count"], s["named_only"]["right"]) == (2, 1)
-    assert "null" in rel.markdown({"proof": "p", "overall": s, "blocks": {"rdnet": s}})
+    assert "null" in rel.markdown({"bins": 5, "overall": s, "blocks": {"rdnet": s}}, "p")
     (tmp_path / "null" / "report.json").unlink()
     with pytest.raises(FormatError):
         rel.load_rows(tmp_path)
@@ -90,3 +85,46 @@ def test_load_rows_reads_every_block(tmp_path):
 def test_no_proof_json_is_a_format_error(tmp_path):
     with pytest.raises(FormatError):
         rel.proof_blocks(tmp_path)
+
+
+def _write_case(folder, name, effects):
+    (folder / name).mkdir(parents=True)
+    (folder / name / "report.json").write_text(json.dumps({"effects": effects}))
+
+
+def test_stage_reliability_of_known_blocks(tmp_path):
+    """What the calibration_proof stage computes from the blocks it ran (in-memory proof
+    metrics, reports on disk): known bins, counts, fractions right and ECE."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    # block a: a concealed latency named at 0.95 (right), jitter at 0.05 (wrong);
+    #          a null case with latency named at 0.85 (wrong)
+    _write_case(a, "lat", [_effect("latency", 0.95, True), _effect("jitter", 0.05)])
+    _write_case(a, "null", [_effect("latency", 0.85, True), _effect("jitter", 0.15)])
+    # block b: a concealed bandwidth missed at 0.25 (right answer, low confidence), latency 0.05
+    _write_case(b, "bw", [_effect("bandwidth", 0.25), _effect("latency", 0.05, evaluated=False)])
+    pa = {"cases": [{"case": "lat", "true_effect": "latency"}, {"case": "null", "true_effect": None}]}
+    pb = {"cases": [{"case": "bw", "true_effect": "bandwidth"}]}
+    rows = rel.block_rows(a, pa, "a") + rel.block_rows(b, pb, "b")
+    result = rel.reliability(rows, n_bins=2)
+    t = result["overall"]["all_candidates"]
+    # bin [0, 0.5): 0.05, 0.15, 0.25 (right), 0.05 -> mean 0.125, fraction 0.25
+    # bin [0.5, 1]: 0.95 (right), 0.85 -> mean 0.9, fraction 0.5
+    assert [(x["count"], x["right"]) for x in t["bins"]] == [(4, 1), (2, 1)]
+    assert t["bins"][0]["mean_confidence"] == pytest.approx(0.125)
+    assert t["bins"][1]["fraction_right"] == pytest.approx(0.5)
+    assert t["ece"] == pytest.approx(4 / 6 * 0.125 + 2 / 6 * 0.4)
+    named = result["overall"]["named_only"]
+    assert (named["count"], named["right"]) == (2, 1) and named["ece"] == pytest.approx(0.4)
+    assert list(result["blocks"]) == ["a", "b"]
+    # block b alone: 0.25 (right) and 0.05 share bin 0 -> mean 0.15, fraction 0.5
+    assert result["blocks"]["b"]["all_candidates"]["ece"] == pytest.approx(0.35)
+    m = rel.compact(result)
+    assert m["all_candidates"] == t and (m["named_wrong"], m["missed"]) == (1, 1)
+    assert m["blocks"]["a"] == {"cases": 2, "candidates": 4, "ece": result["blocks"]["a"]["all_candidates"]["ece"],
+                                "brier": result["blocks"]["a"]["all_candidates"]["brier"]}
+    md = rel.markdown(result, "proof")
+    assert "| 0.0-0.5 | 4 | 1 | 0.125 | 0.250 |" in md and "| 0.5-1.0 | 2 | 1 | 0.900 | 0.500 |" in md
+    assert f"ECE {t['ece']:.3f}" in md and "a/null: latency (0.850)" in md
+    # a case of the metrics without its report on disk
+    with pytest.raises(FormatError):
+        rel.block_rows(b, {"cases": [{"case": "gone", "true_effect": None}]}, "b")

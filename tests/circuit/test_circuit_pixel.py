@@ -159,7 +159,7 @@ def test_hot_pixels_fire_at_their_rate():
 
 
 def test_threshold_mismatch_draws_per_pixel_thresholds():
-    on, off, _, _ = pixel_parameters(20000, CircuitParams(threshold_sigma=0.1), np.random.default_rng(0))
+    on, off, _ = pixel_parameters(20000, CircuitParams(threshold_sigma=0.1), np.random.default_rng(0))
     assert abs(on.std() / 0.2 - 0.1) < 0.005 and abs(off.mean() - 0.2) < 0.002
     assert abs(np.corrcoef(on, off)[0, 1]) < 0.03
 

@@ -77,3 +77,52 @@ def test_network_images_fit_the_channels_of_the_network():
     np.testing.assert_array_equal(network_images(colour, 3), np.moveaxis(colour.linear(), -1, 1))
     with pytest.raises(FormatError, match="frames/images"):
         network_images(grey, 2)
+
+
+def test_count_stage1_runs_once_per_window_and_gives_the_two_pass_events():
+    """Exposure windows (not the interval ones): per batch stage 1 runs once on the deblur
+    windows and once on the interval windows (the old code decided events in a second
+    pass of each: 4 calls); voxels, events and frames equal the two-pass reference."""
+    from rdnet.deblur.pipeline import _to_events, iter_deblur, window_voxels
+    from rdnet.events.voxel_config import VoxelConfig
+    from rdnet.nn.decision import decided_events, decision_dict
+    rng = np.random.default_rng(4)
+    W, H, n, bins = 16, 12, 3, 3
+    net = build_model("rdnet", "tiny", 1, bins, restore_output="counts", width=4)
+    g = torch.Generator().manual_seed(2)
+    with torch.no_grad():
+        for p in net.parameters():                     # random: a fresh stage 1 is the identity
+            p.copy_(0.3 * torch.randn(p.shape, generator=g))
+    net.eval()
+    t = np.array([10_000, 20_000, 30_000], np.int64)
+    a = np.empty(4000, EVENT_DTYPE)
+    a["t"] = np.sort(rng.integers(5_000, 35_000, a.size))
+    a["x"], a["y"], a["p"] = rng.integers(0, W, a.size), rng.integers(0, H, a.size), rng.integers(0, 2, a.size)
+    events = Events(a, W, H)
+    frames = Frames(rng.random((n, H, W)).astype(np.float32), t, np.full(n, 4_000, np.int64))
+    images = frames.grey()[:, None]
+    dw, ew = exposure_windows(frames), interval_windows(frames)
+    voxel, decision = VoxelConfig(bins=bins), decision_dict(0.4)
+    calls = []
+    hook = net.restore.register_forward_hook(lambda *args: calls.append(1))
+    batches = list(iter_deblur(net, images, events, dw, ew, voxel, batch_size=2, decision=decision))
+    hook.remove()
+    assert len(batches) == 2 and len(calls) == 4
+    for b in batches:
+        idx, img = b.index, torch.from_numpy(images[b.index])
+        ref = {}
+        for name, win in (("deblur", dw), ("events", ew)):
+            grids, ones = window_voxels(events, win, idx, voxel, H, W, split=True)
+            ref[name] = _to_events(decided_events(net.restore, img, torch.from_numpy(grids.astype(np.float32)),
+                                                  decision), ones, win, idx, voxel.mode)
+            if name == "events":
+                g2 = grids.reshape(len(idx), 2, bins, H, W)
+                np.testing.assert_array_equal(b.raw_voxel, g2[:, 0] - g2[:, 1])
+                restored, _ = run_rdnet(net, images[idx], grids, torch.device("cpu"), restore_only=True)
+                np.testing.assert_array_equal(b.restored_voxel, restored)
+            else:
+                _, sharp = run_rdnet(net, images[idx], grids, torch.device("cpu"))
+                np.testing.assert_array_equal(b.deblurred, np.clip(sharp, 0.0, 1.0))
+        assert len(b.events) > 0 and len(b.deblur_events) > 0
+        np.testing.assert_array_equal(b.events.array, ref["events"].array)
+        np.testing.assert_array_equal(b.deblur_events.array, ref["deblur"].array)

@@ -45,17 +45,25 @@ def test_windows_tile_the_stream():
 @pytest.mark.parametrize("method,ref", [("baf", lambda e: baf_filter(e, 10_000)),
                                         ("stcf", lambda e: stcf_filter(e, 10_000, 2, 1)),
                                         ("raw", lambda e: e)])
-def test_cli_round_trip_without_frames(tmp_path, method, ref):
+@pytest.mark.parametrize("hot_pass", [True, False])
+def test_cli_round_trip_without_frames(tmp_path, method, ref, hot_pass):
     ev = _write(tmp_path / "in.h5")
     out = tmp_path / "out.h5"
     rc = main(["restore", str(tmp_path / "in.h5"), str(out), "--method", method, "--no-progress",
-               "--set", "restore.window_us=7000", "--set", "restore.chunk_events=333"])
+               "--set", "restore.window_us=7000", "--set", "restore.chunk_events=333",
+               *([] if hot_pass else ["--set", "restore.hot_pixel_factor=0"])])
     assert rc == 0
     rec = read_recording(out)
-    want = ref(ev)                       # small windows and chunks give the one-pass result
+    info = json.loads(out.with_suffix(".json").read_text())
+    hot = (ev.x == 7) & (ev.y == 33)     # the stream's hot pixel: 86 events, neighbours ~1
+    if hot_pass and method != "raw":     # its events go before the filter runs
+        assert info["hot_pixels"]["pixels"] == [[7, 33]] and info["hot_pixels"]["events_dropped"] == hot.sum()
+        want = ref(Events(ev.array[~hot], ev.width, ev.height))
+    else:
+        assert info["hot_pixels"] is None
+        want = ref(ev)                   # small windows and chunks give the one-pass result
     np.testing.assert_array_equal(rec.events.array, want.array)
     assert rec.frames is None
-    info = json.loads(out.with_suffix(".json").read_text())
     assert info["method"] == method and info["events_in"] == len(ev) and info["events_out"] == len(want)
     assert info["has_frames"] is False and info["scores"]["consistency"] is None
     assert info["scores"]["esr"]["raw"] > 0
@@ -201,7 +209,8 @@ def test_streamed_restore_equals_loaded_restore(tmp_path, monkeypatch, method):
     for name in ("in.raw", "in.h5"):
         out = tmp_path / f"out_{name.replace('.', '_')}.h5"
         assert main(["restore", str(tmp_path / name), str(out), "--method", method, "--no-progress",
-                     "--set", f"restore.window_us={window_us}", "--set", f"restore.chunk_events={chunk}"]) == 0
+                     "--set", f"restore.window_us={window_us}", "--set", f"restore.chunk_events={chunk}",
+                     "--set", "restore.hot_pixel_factor=0"]) == 0   # the hot-pixel pass: test_hotpixels
         np.testing.assert_array_equal(read_recording(out).events.array, want, err_msg=name)
         info = json.loads(out.with_suffix(".json").read_text())
         assert info["events_in"] == len(ev) and info["events_out"] == len(want)

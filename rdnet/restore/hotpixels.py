@@ -1,0 +1,70 @@
+"""Hot pixels: pixels that fire far more often than their neighbours, whatever the scene.
+
+A hot pixel (a leaky or stuck comparator) emits events at a high, steady rate that no
+local filter can tell from structure for long: BAF and STCF let its events through as
+soon as one neighbour fires, and a learned restorer sees a pixel full of events. What
+gives it away is its count over a long stretch compared with its neighbours'. As
+jAER's ``HotPixelFilter`` learns the busiest pixels during a learning period, rdnet
+counts every pixel's events over the whole recording (one streamed pass) and flags a
+pixel when
+
+* its count exceeds ``factor`` x the median count of its 8 neighbours (at least 1), and
+* its mean rate exceeds ``min_rate_hz``.
+
+A moving edge lights up a pixel's neighbours as much as the pixel itself, so structure
+is not flagged; a pixel 20x busier than the middle of its neighbourhood for a whole
+recording is not explained by the scene. The flagged pixels' events are then dropped
+before the chosen restorer runs (:func:`drop_pixels`). The pass needs the whole
+recording before the first window, so it suits files, not a live stream.
+"""
+from __future__ import annotations
+
+from typing import Iterable
+
+import numpy as np
+
+from rdnet.errors import ValidationError
+from rdnet.events.core import Events
+
+
+def pixel_counts(chunks: Iterable[Events], width: int, height: int) -> tuple[np.ndarray, int]:
+    """``(counts (height, width) int64, duration_us)`` of a stream of event chunks."""
+    counts = np.zeros(width * height, np.int64)
+    t_first = t_last = None
+    for ev in chunks:
+        if len(ev) == 0:
+            continue
+        counts += np.bincount(ev.y.astype(np.int64) * width + ev.x, minlength=width * height)
+        t_first = int(ev.t[0]) if t_first is None else t_first
+        t_last = int(ev.t[-1])
+    duration = 0 if t_first is None else t_last - t_first
+    return counts.reshape(height, width), duration
+
+
+def neighbour_median(counts: np.ndarray) -> np.ndarray:
+    """Per pixel, the median of its 8 neighbours' counts (outside the sensor counts as 0)."""
+    c = np.pad(np.asarray(counts, np.float64), 1)
+    h, w = counts.shape
+    shifts = [c[1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+              for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)]
+    return np.median(np.stack(shifts), axis=0)
+
+
+def hot_pixels(counts: np.ndarray, duration_us: int, factor: float, min_rate_hz: float) -> np.ndarray:
+    """Boolean (height, width) map of hot pixels (module docstring); nothing is flagged
+    when ``factor`` is 0 or the recording has no duration."""
+    if factor < 0 or min_rate_hz < 0:
+        raise ValidationError("hot_pixels", f"factor and min_rate_hz must be >= 0, got {factor}, {min_rate_hz}")
+    counts = np.asarray(counts)
+    if factor == 0 or duration_us <= 0:
+        return np.zeros(counts.shape, bool)
+    rate_hz = counts / (duration_us * 1e-6)
+    return (counts > factor * np.maximum(neighbour_median(counts), 1.0)) & (rate_hz > min_rate_hz)
+
+
+def drop_pixels(events: Events, mask: np.ndarray) -> Events:
+    """``events`` without those at the pixels where ``mask`` (height, width) is true."""
+    if len(events) == 0 or not mask.any():
+        return events
+    keep = ~mask[events.y, events.x]
+    return Events(events.array[keep], events.width, events.height, validate=False)
