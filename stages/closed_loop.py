@@ -3,8 +3,8 @@ study's sequences with the sensor + degradation that `rdnet calibrate` fitted to
 recording (--report; every fitted effect at --scale x its value), trains the image-guided count
 restorer on them as `train_restore` does (lowest seed of study.seeds) into --models, and
 compares it with the generic restorer (--generic) on the recording: events out, count ratio,
-ESR, event-frame consistency R^2 (raw; raw with the fitted latency subtracted from its
-timestamps; generic; camera), plus the event-level metrics of both
+ESR, event-frame consistency R^2 (raw; generic; camera; and each of them again with the
+fitted latency subtracted from the timestamps first, as `rdnet restore --calibration`), plus the event-level metrics of both
 restorers on the calibrated held-out sequences (in-domain check). Writes OUT/summary.json,
 OUT/summary.md and OUT/summary.png; simulated data and restored streams go to --work
 (params: seed, randomize, blur, voxel, scenes.color, model, train, study.seeds, restore,

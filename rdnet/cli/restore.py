@@ -30,6 +30,9 @@ def register(subparsers) -> None:
     p.add_argument("--checkpoint", type=Path, default=None,
                    help="learned restorer checkpoint (method rdnet; default: the study's, else the packaged one; "
                         "method ednccn: default models/ednccn)")
+    p.add_argument("--calibration", type=Path, default=None, metavar="REPORT",
+                   help="an `rdnet calibrate` report.json of this camera: its fitted latency_us is "
+                        "undone first (sets restore.latency_us)")
     add_sensor_size_args(p)
     add_params_args(p)
     add_progress_arg(p)
@@ -40,6 +43,10 @@ def run(args) -> int:
     from rdnet.restore.run import json_path_for, restore_recording
 
     params = load_cli_params(args)
+    if args.calibration is not None:
+        from rdnet.study.config import calibrated_configs
+        _, degrade = calibrated_configs(args.calibration)
+        params = {**params, "restore": {**(params.get("restore") or {}), "latency_us": degrade.latency_us}}
     res = restore_recording(args.recording, args.out, params, method=args.method,
                             checkpoint=args.checkpoint, progress=args.progress,
                             sensor_size=sensor_size_of(args))

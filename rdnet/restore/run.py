@@ -18,7 +18,9 @@ the recording has them) and OUT.json beside it (OUT with suffix ``.json``):
 * ``hot_pixels``: the pixels the hot-pixel pass flagged (:mod:`rdnet.restore.hotpixels`;
   every method but raw): ``factor``, ``min_rate_hz``, ``count``, ``pixels`` ([x, y], the
   first 1,000) and ``events_dropped``,
-* ``settings``: the ``restore`` section used.
+* ``settings``: the ``restore`` section used (``latency_us``: subtracted from every event
+  timestamp before anything else; the output's timestamps are the corrected ones, the raw
+  scores are those of the stream as recorded).
 
 Both files are written atomically: on any error neither exists afterwards (an older
 OUT.h5/OUT.json is left untouched).
@@ -69,6 +71,23 @@ def _jsonable(obj):
     return obj
 
 
+def shifted(chunks, latency_us: float, dropped: list | None = None):
+    """Event chunks with ``round(latency_us)`` subtracted from every timestamp (a constant
+    sensor latency undone; the order does not change), dropping those that would fall
+    before 0 (their number is appended to ``dropped`` per chunk); the chunks unchanged
+    when it is 0."""
+    shift = int(round(latency_us))
+    for ev in chunks:
+        if shift == 0 or len(ev) == 0:
+            yield ev
+            continue
+        arr = ev.array[ev.t >= shift]          # a copy: the caller's events are not changed
+        arr["t"] -= shift
+        if dropped is not None:
+            dropped.append(len(ev) - len(arr))
+        yield Events(arr, ev.width, ev.height, validate=False)
+
+
 def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *, method: str | None = None,
                       checkpoint: str | Path | None = None, progress: bool = True,
                       sensor_size: tuple[int, int] | None = None) -> dict:
@@ -98,11 +117,12 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
         hot = None
         if method != "raw" and cfg.hot_pixel_factor > 0:
             from rdnet.restore.hotpixels import hot_pixels, pixel_counts
-            counts, dur = pixel_counts(src.chunks(cfg.chunk_events), src.width, src.height)
+            counts, dur = pixel_counts(shifted(src.chunks(cfg.chunk_events), cfg.latency_us), src.width, src.height)
             hot = hot_pixels(counts, dur, cfg.hot_pixel_factor, cfg.hot_pixel_min_hz)
             log.info("hot-pixel pass: %d pixels flagged (factor %g, min %g Hz)", int(hot.sum()),
                      cfg.hot_pixel_factor, cfg.hot_pixel_min_hz)
         n_hot = 0
+        shift = int(round(cfg.latency_us))
         grey = frames.grey() if has_frames else None
         esr_raw = EsrAccumulator(src.width, src.height, cfg.esr_interval_us)
         esr_out = EsrAccumulator(src.width, src.height, cfg.esr_interval_us)
@@ -118,7 +138,9 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                 H5RecordingWriter(out, src.width, src.height, getattr(src, "sensor", "") or "") as writer, \
                 tqdm(total=total, desc=f"restore {restorer.name}", unit="ev", unit_scale=True,
                      disable=(not progress) or None) as bar:
-            for t0, t1, ev in windows(src.chunks(cfg.chunk_events), window_us, path=recording):
+            early: list[int] = []                   # events before the first one the shift keeps
+            for t0, t1, ev in windows(shifted(src.chunks(cfg.chunk_events), cfg.latency_us, early), window_us,
+                                      path=recording):
                 frame = nearest_frame(frames, (t0 + t1) // 2, grey) if has_frames else None
                 kept = ev
                 if hot is not None:
@@ -131,15 +153,20 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                 if n_pending >= cfg.chunk_events:          # few large HDF5 appends, memory bounded
                     writer.append_events(concatenate(pending))
                     pending, n_pending = [], 0
+                recorded = ev
+                if shift:                                   # the raw scores: the stream as recorded
+                    arr = ev.array.copy()
+                    arr["t"] += shift
+                    recorded = Events(arr, ev.width, ev.height, validate=False)
                 if cfg.scores:
-                    esr_raw.add(ev)
+                    esr_raw.add(recorded)
                     esr_out.add(res)
                 if keep_streams:
                     if n_in + len(ev) > cfg.score_max_events:
                         keep_streams = False
                         raw_parts, out_parts = [], []
                     else:
-                        raw_parts.append(ev)
+                        raw_parts.append(recorded)
                         out_parts.append(res)
                 if len(ev):
                     t_first = int(ev.t[0]) if t_first is None else t_first
@@ -148,6 +175,7 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                 n_out += len(res)
                 n_win += 1
                 bar.update(len(ev))
+            n_in += sum(early)
             if pending:
                 writer.append_events(concatenate(pending))
             if has_frames:

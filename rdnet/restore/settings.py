@@ -29,7 +29,10 @@ class RestoreConfig:
     both streams in memory). ``hot_pixel_factor``/``hot_pixel_min_hz``: before every method
     but raw, one pass over the recording flags the pixels whose event count exceeds factor x
     the median of their 8 neighbours' and whose rate exceeds min_hz, and their events are
-    dropped (:mod:`rdnet.restore.hotpixels`; factor 0: off)."""
+    dropped (:mod:`rdnet.restore.hotpixels`; factor 0: off). ``latency_us``: a constant
+    sensor latency undone before anything else: subtracted from every event timestamp
+    (events that would fall before 0 are dropped), e.g. the ``latency_us`` that
+    ``rdnet calibrate`` fitted (``rdnet restore --calibration REPORT``); 0: off."""
 
     method: Literal["rdnet", "baf", "stcf", "gef", "raw", "ednccn"] = "rdnet"
     window_us: int = 50_000
@@ -50,6 +53,7 @@ class RestoreConfig:
     score_max_events: int = 5_000_000
     hot_pixel_factor: float = 20.0
     hot_pixel_min_hz: float = 100.0
+    latency_us: float = 0.0
 
     def __post_init__(self):
         for key in ("window_us", "chunk_events", "baf_dt_us", "stcf_tau_us", "stcf_k", "stcf_radius",
@@ -59,6 +63,7 @@ class RestoreConfig:
         positive("restore.score_max_events", self.score_max_events)
         positive("restore.hot_pixel_factor", self.hot_pixel_factor)
         positive("restore.hot_pixel_min_hz", self.hot_pixel_min_hz)
+        positive("restore.latency_us", self.latency_us)
         if self.method not in METHODS:
             raise ConfigError("restore.method", f"must be one of {list(METHODS)}, got {self.method!r}")
         if self.gef_mode not in ("mask", "filter"):

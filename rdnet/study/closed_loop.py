@@ -30,8 +30,9 @@ log = logging.getLogger(__name__)
 
 #: the rows of the comparison on the real recording, in table order (``latency_corrected``:
 #: the raw events with the fitted latency subtracted from their timestamps, when the
-#: calibration fitted one -- the calibration's own correction, nothing learned).
-ROWS = ("raw", "latency_corrected", "generic", "camera")
+#: calibration fitted one -- the calibration's own correction, nothing learned;
+#: ``<restorer>_latency``: that restorer on the corrected events).
+ROWS = ("raw", "latency_corrected", "generic", "generic_latency", "camera", "camera_latency")
 #: what each row reports (summary.json ``recording.rows.<row>``).
 ROW_KEYS = ("method", "checkpoint", "events_out", "count_ratio", "esr", "consistency_r2")
 
@@ -90,42 +91,34 @@ def _row(res: dict) -> dict:
             "esr": esr.get("restored"), "consistency_r2": cons.get("r2_fitted")}
 
 
-def latency_corrected(recording: Path, latency_us: float, out: Path) -> Path:
-    """``recording`` (events and frames; read whole) written to ``out`` (HDF5) with
-    ``round(latency_us)`` subtracted from every event timestamp: a constant sensor latency
-    undone. The order of the events does not change."""
-    from rdnet.events import Events, Recording
-    from rdnet.events.io import load, write_recording
-    rec = load(recording)
-    ev = rec.require_events(str(recording))
-    arr = ev.array.copy()
-    arr["t"] -= int(round(latency_us))
-    write_recording(out, Recording(rec.width, rec.height, Events(arr, rec.width, rec.height), rec.frames,
-                                   rec.sensor, dict(rec.attrs)))
-    return Path(out)
-
-
 def compare_on_recording(params: Mapping, recording: Path, restorers: Mapping[str, Path], data_out: Path, *,
                          latency_us: float = 0.0, progress: bool = False) -> dict:
-    """``rdnet restore`` of ``recording`` unchanged (row ``raw``), with ``latency_us``
-    subtracted from its timestamps when > 0 (row ``latency_corrected``,
-    :func:`latency_corrected`) and with each learned restorer of ``restorers`` (row name ->
-    checkpoint: a ``model.pt`` or a network folder, its lowest seed), the restored streams in
-    ``data_out/<row>.h5``. Returns ``events_in`` and ``rows`` (:data:`ROW_KEYS` per row;
-    ``count_ratio`` = events out / events in)."""
+    """``rdnet restore`` of ``recording`` unchanged (row ``raw``) and with each learned
+    restorer of ``restorers`` (row name -> checkpoint: a ``model.pt`` or a network folder,
+    its lowest seed); when ``latency_us`` > 0, each of them again with that latency undone
+    first (``restore.latency_us``, as ``rdnet restore --calibration``): rows
+    ``latency_corrected`` (the raw events shifted) and ``<name>_latency``. The restored
+    streams go to ``data_out/<row>.h5``. Returns ``events_in`` and ``rows``
+    (:data:`ROW_KEYS` per row; ``count_ratio`` = events out / events in)."""
     from rdnet.restore.run import restore_recording
     data_out = Path(data_out)
     data_out.mkdir(parents=True, exist_ok=True)
-    raw = restore_recording(recording, data_out / "raw.h5", params, method="raw", progress=progress)
-    rows = {"raw": _row(raw)}
+    shifts = {"": 0.0}
     if latency_us > 0:
-        shifted = latency_corrected(recording, latency_us, data_out / "latency_corrected.input.h5")
-        res = restore_recording(shifted, data_out / "latency_corrected.h5", params, method="raw", progress=progress)
-        rows["latency_corrected"] = {**_row(res), "method": f"raw - {int(round(latency_us))} us"}
-    for name, ck in restorers.items():
-        res = restore_recording(recording, data_out / f"{name}.h5", params, method="rdnet", checkpoint=ck,
-                                progress=progress)
-        rows[name] = _row(res)
+        shifts["_latency"] = float(latency_us)
+    rows = {}
+    raw = None
+    for suffix, lat in shifts.items():
+        p = {**params, "restore": {**(params.get("restore") or {}), "latency_us": lat}}
+        name = "raw" if not suffix else "latency_corrected"
+        res = restore_recording(recording, data_out / f"{name}.h5", p, method="raw", progress=progress)
+        raw = raw or res
+        rows[name] = {**_row(res), "method": "raw" if not suffix else f"raw - {int(round(lat))} us"}
+        for rname, ck in restorers.items():
+            res = restore_recording(recording, data_out / f"{rname}{suffix}.h5", p, method="rdnet", checkpoint=ck,
+                                    progress=progress)
+            rows[rname + suffix] = {**_row(res), "method": _row(res)["method"] + (f" - {int(round(lat))} us"
+                                                                                 if suffix else "")}
     return {"recording": str(recording), "events_in": raw["events_in"], "duration_us": raw["duration_us"],
             "has_frames": raw["has_frames"], "latency_us": float(latency_us), "rows": rows}
 
@@ -160,7 +153,8 @@ def summary_markdown(summary: Mapping) -> str:
     note = ""
     if "latency_corrected" in rec["rows"]:
         note = (f"; `latency_corrected`: the raw events with the fitted latency ({rec['latency_us'] / 1e3:.2f} ms) "
-                "subtracted from their timestamps")
+                "subtracted from their timestamps (`rdnet restore --calibration`), `*_latency`: the "
+                "restorer on those")
     lines = [f"Closed loop on `{rec['recording']}` ({rec['events_in']:,} raw events): "
              "the generic restorer (`generic`) against the one trained on the "
              f"calibrated degradation (`camera`){note}.", "",
@@ -193,7 +187,8 @@ def summary_figure(summary: Mapping, path: Path) -> Path:
     for ax, (key, title) in zip(axes, (("consistency_r2", "event-frame consistency R^2"),
                                        ("count_ratio", "events out / raw"), ("esr", "ESR"))):
         vals = [rows[n][key] if rows[n][key] is not None else float("nan") for n in names]
-        colors = {"raw": "0.6", "latency_corrected": "0.35", "generic": "tab:blue", "camera": "tab:orange"}
+        colors = {"raw": "0.6", "latency_corrected": "0.35", "generic": "tab:blue", "camera": "tab:orange",
+                  "generic_latency": "tab:cyan", "camera_latency": "tab:red"}
         ax.bar([n.replace("latency_corrected", "raw-latency") for n in names], vals,
                color=[colors.get(n, "tab:green") for n in names])
         for i, v in enumerate(vals):

@@ -259,3 +259,31 @@ def test_restorer_contract(method, sets):
             assert np.isin(out.array, w.array).all()
         total += len(out)
     assert 0 < total <= len(ev) or sets.get("gef_mode") == "filter"
+
+
+def test_latency_from_a_calibration_report_is_undone_first(tmp_path, capsys):
+    ev = _write(tmp_path / "in.h5")
+    report = tmp_path / "report.json"
+    report.write_text(json.dumps({"fitted_config": {"sensor": {}, "degrade": {"latency_us": 2500.4}}}))
+    out = tmp_path / "out.h5"
+    assert main(["restore", str(tmp_path / "in.h5"), str(out), "--method", "raw", "--no-progress",
+                 "--calibration", str(report), "--set", "restore.window_us=7000"]) == 0
+    got = read_recording(out).events
+    keep = ev.t >= 2500                      # events that would fall before 0 are dropped
+    assert len(got) == keep.sum() and (got.t[:10] < 2500).any()
+    np.testing.assert_array_equal(got.t, ev.t[keep] - 2500)
+    np.testing.assert_array_equal(got.x, ev.x[keep])
+    info = json.loads(out.with_suffix(".json").read_text())
+    assert info["settings"]["latency_us"] == 2500.4
+    # same with the key set directly, and the BAF result is the one of the shifted stream
+    out2 = tmp_path / "out2.h5"
+    assert main(["restore", str(tmp_path / "in.h5"), str(out2), "--method", "baf", "--no-progress",
+                 "--set", "restore.latency_us=2500", "--set", "restore.hot_pixel_factor=0"]) == 0
+    want = baf_filter(Events(got.array, ev.width, ev.height), 10_000)
+    np.testing.assert_array_equal(read_recording(out2).events.array, want.array)
+    # a report without a fitted config: one line naming the file, exit 2, nothing written
+    bad = tmp_path / "bad.json"
+    bad.write_text("{}")
+    capsys.readouterr()
+    assert main(["restore", str(tmp_path / "in.h5"), str(tmp_path / "o3.h5"), "--calibration", str(bad)]) == 2
+    assert "bad.json" in capsys.readouterr().err and not (tmp_path / "o3.h5").exists()

@@ -79,11 +79,15 @@ def test_compare_on_recording_raw_row_is_the_recording(params, tmp_path, make_re
     write_recording(tmp_path / "r.h5", rec)
     res = CL.compare_on_recording(params, tmp_path / "r.h5", {"generic": PACKAGE_IMAGE}, tmp_path / "out",
                                   latency_us=2500.4)
-    assert list(res["rows"]) == ["raw", "latency_corrected", "generic"] and res["events_in"] == 3000
+    assert set(res["rows"]) == {"raw", "latency_corrected", "generic", "generic_latency"}
+    assert res["events_in"] == 3000
     shifted = read_events(tmp_path / "out" / "latency_corrected.h5")
-    assert np.array_equal(shifted.t, rec.events.t - 2500) and np.array_equal(shifted.x, rec.events.x)
+    keep = rec.events.t >= 2500                    # events that would fall before 0 are dropped
+    assert 0 < keep.sum() <= 3000
+    assert np.array_equal(shifted.t, rec.events.t[keep] - 2500) and np.array_equal(shifted.x, rec.events.x[keep])
     assert res["rows"]["latency_corrected"]["method"] == "raw - 2500 us"
-    assert res["rows"]["latency_corrected"]["count_ratio"] == 1.0
+    assert res["rows"]["latency_corrected"]["count_ratio"] == keep.mean()      # of the 3,000 recorded
+    assert res["rows"]["generic_latency"]["method"] == "rdnet-image - 2500 us"
     raw, gen = res["rows"]["raw"], res["rows"]["generic"]
     assert set(raw) == set(CL.ROW_KEYS) and raw["method"] == "raw" and raw["checkpoint"] is None
     assert raw["events_out"] == 3000 and raw["count_ratio"] == 1.0
