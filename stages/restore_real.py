@@ -24,8 +24,9 @@ SENSOR_SIZE = {"ecd_shapes_subset": (240, 180)}
 MASK = {"sigma_px": 4.0, "rel_threshold": 0.25, "quantile": 0.999}
 SKIP = {".md", ".png", ".jpg", ".json", ".yaml", ".dvc"}
 METHODS = ("raw", "baf", "stcf", "gef", "rdnet", "ednccn")
-#: Extra rows: (key, method, restore overrides, label suffix). The learned restorer without
-#: the hot-pixel pass shows what the network removes by itself.
+#: Extra rows on the recordings with known hot pixels (HOT_PIXELS): (key, method, restore
+#: overrides, label suffix). The learned restorer without the hot-pixel pass shows what the
+#: network removes by itself.
 VARIANTS = (("rdnet_no_hot_pass", "rdnet", {"hot_pixel_factor": 0}, " (no hot-pixel pass)"),)
 
 
@@ -65,7 +66,7 @@ def score_recording(name, path, params, data_out, log):
              "duration_us": int(raw.t[-1] - raw.t[0]), "activity_mask_pixels": int(act.sum()),
              "activity_mask": dict(MASK), "hot_pixels": hot or [], "methods": {}}
     outs = {}
-    runs = [(m, m, {}, "") for m in METHODS] + list(VARIANTS)
+    runs = [(m, m, {}, "") for m in METHODS] + (list(VARIANTS) if hot else [])
     for key, method, overrides, suffix in runs:
         if method == "gef" and not entry["has_frames"]:
             continue

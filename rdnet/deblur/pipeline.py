@@ -159,6 +159,8 @@ def _run(net, images: np.ndarray, voxels: np.ndarray, device: torch.device, *, r
          decision: dict | None = None) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """:func:`run_rdnet` and, with ``decision``, the (n, 2, bins, H, W) restored events of
     the same stage-1 pass (:func:`rdnet.eval.stage1.run_stage1`; None without)."""
+    from rdnet.runtime import keep_freed_memory
+    keep_freed_memory()      # full-frame activations reused, not mmapped afresh per batch
     from rdnet.eval.stage1 import run_stage1
     cfg = net.restore.config
     channels = net.restore.in_channels

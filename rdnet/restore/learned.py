@@ -127,7 +127,10 @@ def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapp
                              device: str = "cpu", source: str | None = None) -> LearnedRestorer:
     """A :class:`LearnedRestorer` from one checkpoint file, validated (module docstring)."""
     from rdnet.nn.decision import read_decision
+    from rdnet.runtime import keep_freed_memory
     from rdnet.train import checkpoint as ckpt_mod
+
+    keep_freed_memory()      # full-frame activations reused, not mmapped afresh per window
 
     path = Path(path)
     try:
