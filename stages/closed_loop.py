@@ -45,7 +45,7 @@ p.add_argument("--recording", type=Path, default=Path("data/real/davis346_road/d
 p.add_argument("--generic", type=Path, default=Path("models/restore_image"))
 p.add_argument("--scale", type=float, default=1.0, help="every fitted effect at this multiple of its value")
 p.add_argument("--work", type=Path, default=Path("data/closed_loop"))
-p.add_argument("--models", type=Path, default=Path("models/restore_davis346"))
+p.add_argument("--models", type=Path, default=Path("data/closed_loop/restore_davis346"))
 p.add_argument("--timing", type=Path, default=Path("metrics/train/restore_davis346.json"))
 p.add_argument("--out", type=Path, default=Path("results/closed_loop"))
 p.add_argument("--no-progress", action="store_true")

@@ -25,6 +25,7 @@ def _tiny_params(p: dict) -> dict:
     p["interpolate"].update(max_upsample=2)
     p["train"].update(iterations=3, batch_size=2, crop=16, log_every=1, ckpt_every=2, val_sequences=1)
     p["ablation"]["level_bins"] = 2
+    p["ednccn"].update(val_sequences=1, max_train_events=3000, epochs=1)
     p["study"].update(seeds=[0, 1], parallel=2,      # two seeds, trained in two processes
                       stress_scales=[0.5, 2.0], stress_rows=["degraded_train", "restored"])
     return p
@@ -70,8 +71,8 @@ def test_dvc_repro_and_exp_run(tmp_path):
         factor = params["networks"][net].get("iterations_factor", 1)
         assert all(r["iterations"] == round(3 * factor) for r in summary["runs"])
     rest = json.loads((repo / "metrics" / "restoration.json").read_text())
-    assert set(rest) == {"degraded", "stcf", "gef", "baf", "gef_voxel", "rdnet", "rdnet_signed", "rdnet_dual",
-                         "restore_image", "restore_events", "restore_signed"}
+    assert set(rest) == {"degraded", "stcf", "gef", "baf", "gef_voxel", "ednccn", "rdnet", "rdnet_signed",
+                         "rdnet_dual", "restore_image", "restore_events", "restore_signed"}
     assert all("voxel_l1" in v and 0 <= v["events"]["f1"] <= 1 for v in rest.values())
     assert rest["degraded"]["events"]["reference"] == rest["rdnet"]["events"]["reference"] > 0
     assert (repo / "results" / "ablation.md").read_text().count("| `") == len(rows)
