@@ -45,7 +45,7 @@ def run(args) -> int:
     params = load_cli_params(args)
     if args.calibration is not None:
         from rdnet.study.config import calibrated_configs
-        _, degrade = calibrated_configs(args.calibration)
+        _, degrade = calibrated_configs(args.calibration, "--calibration")
         params = {**params, "restore": {**(params.get("restore") or {}), "latency_us": degrade.latency_us}}
     res = restore_recording(args.recording, args.out, params, method=args.method,
                             checkpoint=args.checkpoint, progress=args.progress,

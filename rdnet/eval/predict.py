@@ -73,16 +73,14 @@ def _load(kind, checkpoint, pairs_path, device, loaded) -> tuple:
         return None, None
     if checkpoint is None:
         raise ConfigError("checkpoint", f"method {kind!r} needs a checkpoint")
-    from rdnet.train.checkpoint import check_compatible, model_from_checkpoint, read_checkpoint
+    from rdnet.train.checkpoint import load_model, read_checkpoint
     info = read_pairs_info(pairs_path)
     ck = read_checkpoint(checkpoint) if loaded is None else loaded
     channels = info.channels
     if kind == "restore" and int(ck["model_args"].get("image_channels", 1)) == 0:
         channels = 0                                   # an events-only restorer (task restore_events)
-    # rdnet.train.checkpoint.load_model, on the dict already read
-    check_compatible(checkpoint, ck, expected_kind=METHODS[kind], bins=info.bins, image_channels=channels)
-    model = model_from_checkpoint(checkpoint, ck, _device(device))
-    model.eval()
+    model = load_model(checkpoint, METHODS[kind], _device(device), bins=info.bins, image_channels=channels,
+                       loaded=ck)
     return model, ck
 
 

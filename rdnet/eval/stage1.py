@@ -3,9 +3,10 @@ with the checkpoint's voxel -> event decision, the restored *events*, from one f
 
 :func:`rdnet.nn.decision.decided_events` runs the network itself; evaluation
 (:mod:`rdnet.eval.predict`) and ``rdnet deblur`` (:mod:`rdnet.deblur.pipeline`) also need
-the restored voxel, so they call :func:`run_stage1`, which applies the same rules to the
-heads of the one pass (:func:`events_from_heads`, :func:`events_from_signed`): the
-results are identical to a second pass through ``decided_events``, at half the cost.
+the restored voxel, so they call :func:`run_stage1`, which applies the same rules
+(:func:`rdnet.nn.decision.events_from_heads`, :func:`~rdnet.nn.decision.events_from_signed`)
+to the heads of the one pass: the results are identical to a second pass through
+``decided_events``, at half the cost.
 
 :func:`signed_counts` is the ON - OFF signed voxel of per-polarity count grids in numpy
 (the networks' own outputs go through :meth:`RestoreNet.signed`).
@@ -18,21 +19,7 @@ import numpy as np
 import torch
 
 from rdnet.errors import ValidationError
-from rdnet.nn.decision import decide_counts, polarity_grid, read_decision, split_signed
-
-
-def events_from_heads(mu: torch.Tensor, prob: torch.Tensor, decision: Mapping | None) -> np.ndarray:
-    """(n, 2, bins, H, W) int64 ON/OFF events of a count-output stage 1 from its heads
-    ``mu`` and ``prob = sigmoid(logit)`` ((n, 2 * bins, H, W)): the fitted occupancy
-    threshold of ``decision`` (:func:`rdnet.nn.decision.decide_counts`)."""
-    threshold = float(read_decision(decision, "counts")["threshold"])
-    return polarity_grid(decide_counts(mu.float().cpu().numpy(), prob.float().cpu().numpy(), threshold))
-
-
-def events_from_signed(restored: torch.Tensor) -> np.ndarray:
-    """(n, 2, bins, H, W) int64 ON/OFF events of the signed output ``restored`` ((n, bins,
-    H, W)): ``round(v)`` events of sign ``v`` per voxel."""
-    return polarity_grid(split_signed(np.rint(restored.float().cpu().numpy())).astype(np.int64))
+from rdnet.nn.decision import events_from_heads, events_from_signed
 
 
 def run_stage1(stage1, image: torch.Tensor | None, x: torch.Tensor,

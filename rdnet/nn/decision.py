@@ -92,18 +92,29 @@ def polarity_grid(counts: np.ndarray) -> np.ndarray:
     return c.reshape(c.shape[:-3] + (2, c.shape[-3] // 2) + c.shape[-2:])
 
 
+def events_from_heads(mu, prob, decision: Mapping | None) -> np.ndarray:
+    """(n, 2, bins, H, W) int64 ON/OFF events of a count-output stage 1 from its heads
+    ``mu`` and ``prob = sigmoid(logit)`` (torch tensors (n, 2 * bins, H, W)): the fitted
+    occupancy threshold of ``decision`` (:func:`decide_counts`)."""
+    threshold = float(read_decision(decision, "counts")["threshold"])
+    return polarity_grid(decide_counts(mu.float().cpu().numpy(), prob.float().cpu().numpy(), threshold))
+
+
+def events_from_signed(restored) -> np.ndarray:
+    """(n, 2, bins, H, W) int64 ON/OFF events of the signed output ``restored`` (a torch
+    tensor (n, bins, H, W)): ``round(v)`` events of sign ``v`` per voxel."""
+    return polarity_grid(split_signed(np.rint(restored.float().cpu().numpy())).astype(np.int64))
+
+
 def decided_events(stage1, image, x, decision: Mapping | None) -> np.ndarray:
     """(n, 2, bins, H, W) int64 ON/OFF event counts decided from a stage-1 network's
     output on the torch inputs ``image`` (None for events-only) and ``x`` (the signed
     voxel, or ON-then-OFF counts for the count output): the count output applies the
-    fitted occupancy threshold of ``decision`` (:func:`decide_counts`), the signed output
-    rounds (``round(v)`` events of sign ``v``)."""
+    fitted occupancy threshold of ``decision`` (:func:`events_from_heads`), the signed
+    output rounds (:func:`events_from_signed`)."""
     import torch
     with torch.inference_mode():
         if stage1.output == "counts":
             mu, logit = stage1(image, x, return_heads=True)
-            c = decide_counts(mu.float().cpu().numpy(), torch.sigmoid(logit).float().cpu().numpy(),
-                              float(read_decision(decision, "counts")["threshold"]))
-        else:
-            c = split_signed(np.rint(stage1(image, x).float().cpu().numpy())).astype(np.int64)
-    return polarity_grid(c)
+            return events_from_heads(mu, torch.sigmoid(logit), decision)
+        return events_from_signed(stage1(image, x))

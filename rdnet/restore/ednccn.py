@@ -303,42 +303,72 @@ def _window_data(pairs_path: Path, events_dir: Path, rows: np.ndarray, cfg: Ednc
         ref = np.stack([f["voxel_undegraded_off"][...][rows], f["voxel_undegraded_on"][...][rows]], 1)
     ref = np.rint(ref).astype(np.int64)                            # (n, 2, bins, H, W): OFF, ON
     files = sorted(Path(events_dir).glob("seq_*.h5"))
-    parts = []
     grid = ref[0].size if len(rows) else 0
-    for s in tqdm(np.unique(seq[rows]), desc="ednccn features", disable=not progress or None):
+    # pass 1: each window's event range and labels (no features yet)
+    seqs, parts = {}, []                    # parts: (sequence, i0, i1, polarity, labels, voxel ids)
+    for s in np.unique(seq[rows]):
         if s >= len(files):
             raise FormatError(events_dir, "sequence", f"pairs row names sequence {s}, only {len(files)} seq_*.h5")
-        ev = read_events(files[s])
-        feats = event_features(ev, cfg.radius, cfg.depth, cfg.tau_us)
+        ev = seqs[s] = read_events(files[s])
         for k in np.flatnonzero(seq[rows] == s):
             i0, i1, v, lab = window_labels(ev, ref[k], bins, int(t0[rows[k]]), int(dur[rows[k]]))
-            parts.append((feats[i0:i1], ev.p[i0:i1], lab, v + k * grid))
+            parts.append((s, i0, i1, ev.p[i0:i1], lab, v + k * grid))
+    sizes = np.array([p[2] - p[1] for p in parts], np.int64)
+    total = int(sizes.sum())
+    pick = None                             # the events kept, drawn before any feature is built
+    if max_events is not None and total > max_events:
+        pick = np.sort(rng.choice(total, max_events, replace=False))
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    # pass 2: features per sequence (causal over its whole stream), only the kept rows copied
+    out = [[], [], [], []]
+    for s in tqdm(list(seqs), desc="ednccn features", disable=not progress or None):
+        feats = event_features(seqs[s], cfg.radius, cfg.depth, cfg.tau_us)
+        for j in (j for j, p in enumerate(parts) if p[0] == s):
+            _, i0, i1, pol, lab, vox = parts[j]
+            keep = (slice(None) if pick is None else
+                    pick[np.searchsorted(pick, starts[j]):np.searchsorted(pick, starts[j + 1])] - starts[j])
+            for acc, a in zip(out, (feats[i0:i1], pol, lab, vox)):
+                acc.append(a[keep])
         del feats
-    cat = [np.concatenate([p[j] for p in parts]) if parts else np.zeros(0) for j in range(4)]
-    if max_events is not None and len(cat[2]) > max_events:
-        pick = np.sort(rng.choice(len(cat[2]), max_events, replace=False))
-        cat = [c[pick] for c in cat]
+    cat = [np.concatenate(a) if a else np.zeros(0) for a in out]
     return cat[0], cat[1], cat[2], cat[3], ref
+
+
+def _device(name: str, key: str) -> torch.device:
+    """:func:`rdnet.train.loop.resolve_device`, its error naming the caller's params key."""
+    from rdnet.train.loop import resolve_device
+    try:
+        return resolve_device(name)
+    except ConfigError:
+        raise ConfigError(key, f"{name!r} requested but no CUDA device is available") from None
 
 
 def train_ednccn(cfg: EdnccnConfig, pairs_path: str | Path, events_dir: str | Path, out: str | Path, *,
                  progress: bool = True) -> dict:
     """Train the classifier on the training pairs/events, fit the keep threshold on the
     held-out sequences, write ``out/model.pt``; returns the training record (metrics,
-    wall time)."""
+    wall time). Torch's global random state and thread count are restored afterwards."""
+    threads = torch.get_num_threads()
+    try:
+        with torch.random.fork_rng(devices=[]):
+            return _train(cfg, pairs_path, events_dir, out, progress)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _train(cfg: EdnccnConfig, pairs_path, events_dir, out, progress: bool) -> dict:
     from tqdm import tqdm
 
     from rdnet.config import to_dict
     from rdnet.eval.events import match_metrics
     from rdnet.train.checkpoint import make_checkpoint, save_checkpoint
     from rdnet.train.data import split_rows
-    from rdnet.train.loop import resolve_device
 
     start = time.perf_counter()
     pairs_path, events_dir = Path(pairs_path), Path(events_dir)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
-    device = resolve_device(cfg.device)
+    device = _device(cfg.device, "ednccn.device")
     rng = np.random.default_rng(cfg.seed)
     torch.manual_seed(cfg.seed)
     try:
@@ -445,13 +475,13 @@ def _fail(path: Path, field: str, msg: str) -> ConfigError:
     return ConfigError("checkpoint", f"{path}: {field}: {msg}")
 
 
-def load_ednccn(checkpoint: str | Path | None = None, *, device: str = "cpu") -> EdnccnRestorer:
+def load_ednccn(checkpoint: str | Path | None = None, *, device: str = "cpu",
+                device_key: str = "restore.device") -> EdnccnRestorer:
     """The classifier of ``checkpoint`` (a ``model.pt`` or a folder holding one; default
     :data:`STUDY_MODEL`), validated: a ConfigError naming the file and the field when it
     is missing, unreadable or not an EDnCNN checkpoint."""
     from rdnet.restore.learned import _checkpoint_file
     from rdnet.train.checkpoint import read_checkpoint
-    from rdnet.train.loop import resolve_device
     where = Path(checkpoint) if checkpoint is not None else STUDY_MODEL
     path = _checkpoint_file(where)
     if path is None:
@@ -476,5 +506,5 @@ def load_ednccn(checkpoint: str | Path | None = None, *, device: str = "cpu") ->
     if not isinstance(tau, int) or tau <= 0:
         raise _fail(path, "extra.tau_us", f"must be a positive int, got {tau!r}")
     log.info("EDnCNN classifier %s (threshold %.4f)", path, decision["threshold"])
-    return EdnccnRestorer(net, tau, decision["threshold"], device=resolve_device(device), source=str(path),
+    return EdnccnRestorer(net, tau, decision["threshold"], device=_device(device, device_key), source=str(path),
                           info={"val_metrics": decision.get("val_metrics"), "train": ck.get("config")})

@@ -8,7 +8,8 @@ jAER's ``HotPixelFilter`` learns the busiest pixels during a learning period, rd
 counts every pixel's events over the whole recording (one streamed pass) and flags a
 pixel when
 
-* its count exceeds ``factor`` x the median count of its 8 neighbours (at least 1), and
+* its count exceeds ``factor`` x the median count of its neighbours on the sensor (8, or
+  5 on an edge, 3 at a corner; at least 1), and
 * its mean rate exceeds ``min_rate_hz``.
 
 A moving edge lights up a pixel's neighbours as much as the pixel itself, so structure
@@ -42,12 +43,19 @@ def pixel_counts(chunks: Iterable[Events], width: int, height: int) -> tuple[np.
 
 
 def neighbour_median(counts: np.ndarray) -> np.ndarray:
-    """Per pixel, the median of its 8 neighbours' counts (outside the sensor counts as 0)."""
-    c = np.pad(np.asarray(counts, np.float64), 1)
+    """Per pixel, the median of its neighbours' counts inside the sensor (8 inside, 5 on an
+    edge, 3 at a corner); NaN for a pixel without neighbours (a 1 x 1 sensor)."""
+    counts = np.asarray(counts)
+    c = np.pad(counts.astype(np.float64), 1, constant_values=np.nan)
     h, w = counts.shape
-    shifts = [c[1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
-              for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)]
-    return np.median(np.stack(shifts), axis=0)
+    shifts = np.stack([c[1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+                       for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)])
+    n = np.count_nonzero(~np.isnan(shifts), axis=0)
+    # NaN (outside) sorts last: the median of the n inside values, without nanmedian's warnings
+    srt = np.sort(shifts, axis=0)
+    lo = np.take_along_axis(srt, np.maximum((n - 1) // 2, 0)[None], axis=0)[0]
+    hi = np.take_along_axis(srt, np.maximum(n // 2, 0)[None], axis=0)[0]
+    return np.where(n > 0, 0.5 * (lo + hi), np.nan)
 
 
 def hot_pixels(counts: np.ndarray, duration_us: int, factor: float, min_rate_hz: float) -> np.ndarray:
@@ -59,7 +67,8 @@ def hot_pixels(counts: np.ndarray, duration_us: int, factor: float, min_rate_hz:
     if factor == 0 or duration_us <= 0:
         return np.zeros(counts.shape, bool)
     rate_hz = counts / (duration_us * 1e-6)
-    return (counts > factor * np.maximum(neighbour_median(counts), 1.0)) & (rate_hz > min_rate_hz)
+    med = np.nan_to_num(neighbour_median(counts), nan=np.inf)   # no neighbour: nothing to compare
+    return (counts > factor * np.maximum(med, 1.0)) & (rate_hz > min_rate_hz)
 
 
 def drop_pixels(events: Events, mask: np.ndarray) -> Events:

@@ -18,6 +18,8 @@ the recording has them) and OUT.json beside it (OUT with suffix ``.json``):
 * ``hot_pixels``: the pixels the hot-pixel pass flagged (:mod:`rdnet.restore.hotpixels`;
   every method but raw): ``factor``, ``min_rate_hz``, ``count``, ``pixels`` ([x, y], the
   first 1,000) and ``events_dropped``,
+* ``latency_dropped``: events before the first one ``restore.latency_us`` keeps (counted in
+  ``events_in``, not scored),
 * ``settings``: the ``restore`` section used (``latency_us``: subtracted from every event
   timestamp before anything else; the output's timestamps are the corrected ones, the raw
   scores are those of the stream as recorded).
@@ -36,7 +38,7 @@ from typing import Mapping
 import numpy as np
 
 from rdnet.config import section, to_dict
-from rdnet.errors import FormatError
+from rdnet.errors import ConfigError, FormatError
 from rdnet.events.core import Events, concatenate
 from rdnet.restore.base import get_restorer
 from rdnet.restore.stream import windows
@@ -86,6 +88,18 @@ def shifted(chunks, latency_us: float, dropped: list | None = None):
         if dropped is not None:
             dropped.append(len(ev) - len(arr))
         yield Events(arr, ev.width, ev.height, validate=False)
+
+
+def _windows_after_shift(chunks, latency_us: float, early: list, window_us: int, recording: Path):
+    """:func:`rdnet.restore.stream.windows` of the shifted chunks; a ConfigError naming
+    ``restore.latency_us`` when the shift leaves no event of a recording that has some."""
+    try:
+        yield from windows(shifted(chunks, latency_us, early), window_us, path=recording)
+    except FormatError as e:
+        if sum(early):
+            raise ConfigError("restore.latency_us", f"{int(round(latency_us))} us is longer than the "
+                              f"{sum(early)} events of {recording} span: none is left") from None
+        raise e
 
 
 def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *, method: str | None = None,
@@ -139,8 +153,8 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                 tqdm(total=total, desc=f"restore {restorer.name}", unit="ev", unit_scale=True,
                      disable=(not progress) or None) as bar:
             early: list[int] = []                   # events before the first one the shift keeps
-            for t0, t1, ev in windows(shifted(src.chunks(cfg.chunk_events), cfg.latency_us, early), window_us,
-                                      path=recording):
+            for t0, t1, ev in _windows_after_shift(src.chunks(cfg.chunk_events), cfg.latency_us, early, window_us,
+                                                   recording):
                 frame = nearest_frame(frames, (t0 + t1) // 2, grey) if has_frames else None
                 kept = ev
                 if hot is not None:
@@ -201,6 +215,7 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                 "checkpoint": None if checkpoint is None else str(checkpoint),
                 "events_in": n_in, "events_out": n_out,
                 "kept_fraction": n_out / n_in if n_in else None,
+                "latency_dropped": sum(early),
                 "windows": n_win, "window_us": window_us, "duration_us": duration,
                 "seconds": seconds, "cpu_seconds": cpu_seconds, "events_per_s": n_in / seconds if seconds > 0 else None,
                 "realtime_factor": (duration * 1e-6) / seconds if seconds > 0 else None,

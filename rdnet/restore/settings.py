@@ -62,6 +62,9 @@ class RestoreConfig:
         positive("restore.gef_eps", self.gef_eps, allow_zero=False)
         positive("restore.score_max_events", self.score_max_events)
         positive("restore.hot_pixel_factor", self.hot_pixel_factor)
+        if 0 < self.hot_pixel_factor < 1:
+            raise ConfigError("restore.hot_pixel_factor", f"must be 0 (off) or >= 1 (a pixel that many times "
+                                                         f"its neighbours' median), got {self.hot_pixel_factor}")
         positive("restore.hot_pixel_min_hz", self.hot_pixel_min_hz)
         positive("restore.latency_us", self.latency_us)
         if self.method not in METHODS:

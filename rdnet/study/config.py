@@ -97,9 +97,10 @@ def seed_checkpoint(checkpoint: str | Path, seed: int) -> Path:
     return p if p.suffix == ".pt" else seed_dir(p, seed) / "model.pt"
 
 
-def calibrated_configs(report_path: str | Path):
+def calibrated_configs(report_path: str | Path, option: str = "study.degrade_from"):
     """``(SensorConfig, DegradeConfig)`` of the ``fitted_config`` of an ``rdnet calibrate``
-    report (FormatError / ConfigError naming the file and field when it is not one)."""
+    report (FormatError / ConfigError naming the file and field when it is not one;
+    ``option``: where the path came from, for the missing-file message)."""
     import json
     from rdnet.errors import FormatError
     from rdnet.sim.settings import DegradeConfig, SensorConfig
@@ -107,7 +108,7 @@ def calibrated_configs(report_path: str | Path):
     try:
         rep = json.loads(p.read_text())
     except FileNotFoundError:
-        raise FormatError(p, None, "no such file (study.degrade_from)") from None
+        raise FormatError(p, None, f"no such file ({option})") from None
     except (OSError, ValueError) as e:
         raise FormatError(p, None, f"not a JSON calibration report: {e}") from None
     fitted = rep.get("fitted_config") if isinstance(rep, dict) else None

@@ -137,7 +137,7 @@ def event_filter(name: str, pairs_path: Path, events_dir: Path, cfg: FilterConfi
     bins, mode = _pairs_mode(pairs_path)
     if name == "ednccn":
         from rdnet.restore.ednccn import load_ednccn
-        clf = load_ednccn(checkpoint, device=device)
+        clf = load_ednccn(checkpoint, device=device, device_key="ablation.device")
         return _EventFilterTransform(pairs_path, events_dir, bins, mode, whole=clf.filter_stream)
     if name == "stcf":
         from rdnet.baselines.stcf import stcf_filter

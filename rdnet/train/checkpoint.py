@@ -200,11 +200,13 @@ def model_from_checkpoint(path, ck: Mapping, device: str | torch.device = "cpu")
 
 
 def load_model(path: str | Path, expected_kind: str | None = None, device: str | torch.device = "cpu",
-               *, bins: int | None = None, image_channels: int | None = None) -> nn.Module:
+               *, bins: int | None = None, image_channels: int | None = None,
+               loaded: dict | None = None) -> nn.Module:
     """The network stored in checkpoint ``path``, rebuilt from the checkpoint alone, in
     eval mode on ``device``. ``expected_kind``/``bins``/``image_channels``, when given,
-    must match (FormatError naming the file and field otherwise)."""
-    ck = read_checkpoint(path)
+    must match (FormatError naming the file and field otherwise). ``loaded``: the
+    checkpoint dict already read from ``path`` (the file is then not read again)."""
+    ck = read_checkpoint(path) if loaded is None else loaded
     check_compatible(path, ck, expected_kind=expected_kind, bins=bins, image_channels=image_channels)
     net = model_from_checkpoint(path, ck, device)
     net.eval()

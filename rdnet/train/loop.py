@@ -488,7 +488,12 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
     finally:
         bar.close()
         if live is not None:
-            live.end()
+            try:
+                live.end()
+            except FileNotFoundError:
+                # dvclive's last step (removing its VS Code signal file under `dvc exp run`)
+                # races with the other seeds' processes (exists, then remove): nothing lost
+                pass
         data.close()
 
     if stop < cfg.iterations:

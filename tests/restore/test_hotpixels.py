@@ -13,8 +13,18 @@ def test_neighbour_median_known_values():
     c = np.arange(12).reshape(3, 4)
     med = neighbour_median(c)
     assert med[1, 1] == np.median([0, 1, 2, 4, 6, 8, 9, 10])        # the 8 neighbours, not itself
-    assert med[0, 0] == np.median([0, 0, 0, 0, 0, 1, 4, 5])         # outside the sensor counts as 0
+    assert med[0, 0] == np.median([1, 4, 5])                          # a corner has 3 neighbours
+    assert med[0, 2] == np.median([1, 3, 5, 6, 7])                    # an edge pixel 5
     assert c[1, 1] == 5                                               # input untouched
+    assert np.isnan(neighbour_median(np.array([[7]]))[0, 0])         # no neighbour at all
+
+
+def test_a_uniformly_busy_sensor_has_no_hot_pixel_not_even_in_its_corners():
+    assert not hot_pixels(np.full((10, 12), 500), 1_000_000, 20, 100).any()
+    assert not hot_pixels(np.array([[900]]), 1_000_000, 20, 100).any()
+    one = np.full((10, 12), 25)
+    one[0, 0] = 900                                                   # a hot corner is still found
+    assert np.argwhere(hot_pixels(one, 1_000_000, 20, 100)).tolist() == [[0, 0]]
 
 
 def test_edge_kept_hot_pixel_flagged_and_dropped():
@@ -35,6 +45,10 @@ def test_edge_kept_hot_pixel_flagged_and_dropped():
     assert not hot_pixels(counts, 0, 20, 100).any()
     with pytest.raises(ValidationError):
         hot_pixels(counts, dur, -1, 100)
+    from rdnet.errors import ConfigError
+    from rdnet.restore.settings import RestoreConfig
+    with pytest.raises(ConfigError, match="hot_pixel_factor"):
+        RestoreConfig(hot_pixel_factor=0.5)
 
 
 def test_noise_free_edge_passes_unchanged():

@@ -287,3 +287,11 @@ def test_latency_from_a_calibration_report_is_undone_first(tmp_path, capsys):
     capsys.readouterr()
     assert main(["restore", str(tmp_path / "in.h5"), str(tmp_path / "o3.h5"), "--calibration", str(bad)]) == 2
     assert "bad.json" in capsys.readouterr().err and not (tmp_path / "o3.h5").exists()
+    assert main(["restore", str(tmp_path / "in.h5"), str(tmp_path / "o3.h5"),
+                 "--calibration", str(tmp_path / "none.json")]) == 2
+    assert "--calibration" in capsys.readouterr().err
+    # a shift longer than the recording: one line naming the key, exit 2, nothing written
+    assert main(["restore", str(tmp_path / "in.h5"), str(tmp_path / "o4.h5"), "--method", "raw",
+                 "--set", "restore.latency_us=1e9"]) == 2
+    assert "restore.latency_us" in capsys.readouterr().err and not (tmp_path / "o4.h5").exists()
+    assert info["latency_dropped"] == (~keep).sum() > 0
