@@ -28,8 +28,8 @@ class RestoreConfig:
     consistency is scored only when the raw stream has at most this many events (it holds
     both streams in memory). ``hot_pixel_factor``/``hot_pixel_min_hz``: before every method
     but raw, one pass over the recording flags the pixels whose event count exceeds factor x
-    the median of their 8 neighbours' and whose rate exceeds min_hz, and their events are
-    dropped (:mod:`rdnet.restore.hotpixels`; factor 0: off). ``latency_us``: a constant
+    the median of their neighbours' on the sensor and whose rate exceeds min_hz, and their
+    events are dropped (:mod:`rdnet.restore.hotpixels`; factor 0: off, else >= 1). ``latency_us``: a constant
     sensor latency undone before anything else: subtracted from every event timestamp
     (events that would fall before 0 are dropped), e.g. the ``latency_us`` that
     ``rdnet calibrate`` fitted (``rdnet restore --calibration REPORT``); 0: off."""
