@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rdnet.errors import FormatError
+from rdnet.errors import FormatError, ValidationError
 
 
 def candidate_rows(report: dict, true_effect: str | None, *, block: str = "", case: str = "") -> list[dict]:
@@ -45,9 +45,9 @@ def reliability_table(confidence, right, n_bins: int = 5) -> dict:
     c = np.asarray(confidence, dtype=float)
     r = np.asarray(right, dtype=bool)
     if c.shape != r.shape or c.ndim != 1:
-        raise ValueError("confidence and right must be 1-D and of equal length")
+        raise ValidationError("confidence", "confidence and right must be 1-D and of equal length")
     if c.size and (not np.all(np.isfinite(c)) or c.min() < 0.0 or c.max() > 1.0):
-        raise ValueError("confidences must lie in [0, 1]")
+        raise ValidationError("confidence", "confidences must lie in [0, 1]")
     idx = np.minimum((c * n_bins).astype(int), n_bins - 1)
     bins, ece = [], 0.0
     for b in range(n_bins):
@@ -69,12 +69,26 @@ def block_rows(folder: str | Path, proof: dict, block: str) -> list[dict]:
     :func:`rdnet.calib.proof.run_proof` returns them and writes to ``folder/proof.json``),
     each case's report is read from ``folder/<case>/report.json``."""
     rows = []
-    for case in proof["cases"]:
+    cases = proof.get("cases") if isinstance(proof, dict) else None
+    if not isinstance(cases, list) or not all(isinstance(c, dict) and "case" in c and "true_effect" in c
+                                              for c in cases):
+        raise FormatError(Path(folder) / "proof.json", "cases", "expected a list of {case, true_effect, ...}")
+    for case in cases:
         rp = Path(folder) / case["case"] / "report.json"
         if not rp.is_file():
             raise FormatError(rp, None, f"report of case {case['case']} (block {block}) is missing")
-        rows += candidate_rows(json.loads(rp.read_text()), case["true_effect"], block=block, case=case["case"])
+        try:
+            rows += candidate_rows(_read_json(rp), case["true_effect"], block=block, case=case["case"])
+        except (KeyError, TypeError, ValueError) as e:
+            raise FormatError(rp, "effects", f"not a calibration report's effects list ({type(e).__name__}: {e})") from None
     return rows
+
+
+def _read_json(path: Path):
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, ValueError) as e:
+        raise FormatError(path, None, f"not readable JSON: {e}") from None
 
 
 def proof_blocks(folder: str | Path) -> dict[str, Path]:
@@ -95,7 +109,7 @@ def load_rows(folder: str | Path) -> list[dict]:
     """Candidate rows of every case of every block of a proof folder on disk."""
     rows = []
     for block, d in proof_blocks(folder).items():
-        rows += block_rows(d, json.loads((d / "proof.json").read_text()), block)
+        rows += block_rows(d, _read_json(d / "proof.json"), block)
     return rows
 
 

@@ -8,7 +8,7 @@ import json
 import pytest
 
 from rdnet.calib import reliability as rel
-from rdnet.errors import FormatError
+from rdnet.errors import FormatError, ValidationError
 
 
 def _effect(name, confidence, missing=False, evaluated=True):
@@ -37,9 +37,9 @@ def test_table_edges_empty_bins_and_perfect_calibration():
     # bin 1 (0.2, wrong) is off by 0.2 with weight 1/4; the rest exact
     assert t["ece"] == pytest.approx(0.05)
     assert rel.reliability_table([], [])["ece"] is None
-    with pytest.raises(ValueError):
+    with pytest.raises(ValidationError):
         rel.reliability_table([1.2], [True])
-    with pytest.raises(ValueError):
+    with pytest.raises(ValidationError):
         rel.reliability_table([0.5, 0.5], [True])
 
 
@@ -77,8 +77,17 @@ def test_load_rows_reads_every_block(tmp_path):
     assert [(r["case"], r["effect"]) for r in s["missed"]] == [("bw", "bandwidth")]
     assert (s["named_only"]["count"], s["named_only"]["right"]) == (2, 1)
     assert "null" in rel.markdown({"bins": 5, "overall": s, "blocks": {"rdnet": s}}, "p")
+    (tmp_path / "null" / "report.json").write_text("{not json")
+    with pytest.raises(FormatError, match="report.json"):
+        rel.load_rows(tmp_path)
+    (tmp_path / "null" / "report.json").write_text(json.dumps({"effects": [{"confidence": 0.5}]}))
+    with pytest.raises(FormatError, match="effects"):       # an effect without its name
+        rel.load_rows(tmp_path)
     (tmp_path / "null" / "report.json").unlink()
     with pytest.raises(FormatError):
+        rel.load_rows(tmp_path)
+    (tmp_path / "proof.json").write_text(json.dumps({"cases": [{"case": "x"}]}))
+    with pytest.raises(FormatError, match="cases"):
         rel.load_rows(tmp_path)
 
 
