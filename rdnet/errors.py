@@ -43,3 +43,8 @@ class ConfigError(RdnetError):
         self.source = None if source is None else str(source)
         pre = f"{self.source}: " if self.source else ""
         super().__init__(f"{pre}parameter '{key}': {message}")
+
+
+class ModelNotFoundError(ConfigError):
+    """No trained model where one was looked for (nothing given, none trained or packaged),
+    as opposed to a model that exists but is unusable (a plain ConfigError)."""

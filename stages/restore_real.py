@@ -30,13 +30,6 @@ METHODS = ("raw", "baf", "stcf", "gef", "rdnet", "ednccn")
 VARIANTS = (("rdnet_no_hot_pass", "rdnet", {"hot_pixel_factor": 0}, " (no hot-pixel pass)"),)
 
 
-def _not_installed(e) -> bool:
-    """Whether a ConfigError from restore_recording says a learned model is absent (the
-    row is skipped) rather than unusable (the stage fails)."""
-    text = str(e)
-    return "no EDnCNN model.pt found" in text or "no trained restorer" in text
-
-
 def recordings(roots):
     """(name, path) of candidate recordings: one per folder name, first root first."""
     seen, out = set(), []
@@ -54,7 +47,7 @@ def recordings(roots):
 def score_recording(name, path, params, data_out, log):
     import json
 
-    from rdnet.errors import ConfigError
+    from rdnet.errors import ModelNotFoundError
     from rdnet.eval.noref import activity_mask, mask_fractions, pixel_mask
     from rdnet.events.io import load
     from rdnet.restore.run import restore_recording
@@ -82,10 +75,8 @@ def score_recording(name, path, params, data_out, log):
         run_params = {**params, "restore": {**params.get("restore", {}), **overrides}}
         try:
             res = restore_recording(path, out, run_params, method=method, progress=False, sensor_size=size)
-        except ConfigError as e:
-            if not _not_installed(e):                 # a broken model is an error, not a missing row
-                raise
-            log.warning("%s: method %s skipped: %s", name, key, e)
+        except ModelNotFoundError as e:               # a broken model fails the stage; an absent one
+            log.warning("%s: method %s skipped: %s", name, key, e)   # only loses its row
             continue
         restored = load(out).events
         outs[key] = restored

@@ -52,7 +52,7 @@ from torch import nn
 
 from rdnet.baselines.stcf import NEVER_US
 from rdnet.config import positive
-from rdnet.errors import ConfigError, FormatError, ValidationError
+from rdnet.errors import ConfigError, FormatError, ModelNotFoundError, ValidationError
 from rdnet.events.core import Events
 
 log = logging.getLogger(__name__)
@@ -175,9 +175,7 @@ def event_features(events: Events, radius: int, depth: int, tau_us: int,
 def window_voxels(events: Events, bins: int, t0_us: int, duration_us: int) -> tuple[int, int, np.ndarray]:
     """(i0, i1, v): the events ``events[i0:i1]`` that :func:`rdnet.eval.events.polarity_counts`
     counts for the window [t0, t0 + duration] and the flat index ``v`` of each one's entry
-    in that (2, bins, H, W) grid. Checked against ``polarity_counts`` itself (a
-    ValidationError if the two binnings ever disagree)."""
-    from rdnet.eval.events import polarity_counts
+    in that (2, bins, H, W) grid (the same binning: tests compare the two)."""
     t0_us, duration_us = int(t0_us), int(duration_us)
     H, W = events.height, events.width
     i0 = int(np.searchsorted(events.t, t0_us, "left"))
@@ -185,9 +183,6 @@ def window_voxels(events: Events, bins: int, t0_us: int, duration_us: int) -> tu
     a = events.array[i0:i1]
     b = np.minimum((a["t"] - np.int64(t0_us)) * bins // duration_us, bins - 1)
     v = ((a["p"].astype(np.int64) * bins + b) * H + a["y"].astype(np.int64)) * W + a["x"].astype(np.int64)
-    counts = polarity_counts(events, bins, t0_us, duration_us)
-    if not np.array_equal(np.bincount(v, minlength=counts.size), counts.ravel()):
-        raise ValidationError("bins", "event voxel indices disagree with rdnet.eval.events.polarity_counts")
     return i0, i1, v
 
 
@@ -471,22 +466,18 @@ class EdnccnRestorer:
         return events.select(self.keep_probability(events, state) >= self.threshold)
 
 
-def _fail(path: Path, field: str, msg: str) -> ConfigError:
-    return ConfigError("checkpoint", f"{path}: {field}: {msg}")
-
-
 def load_ednccn(checkpoint: str | Path | None = None, *, device: str = "cpu",
                 device_key: str = "restore.device") -> EdnccnRestorer:
     """The classifier of ``checkpoint`` (a ``model.pt`` or a folder holding one; default
     :data:`STUDY_MODEL`), validated: a ConfigError naming the file and the field when it
     is missing, unreadable or not an EDnCNN checkpoint."""
-    from rdnet.restore.learned import _checkpoint_file
+    from rdnet.restore.learned import _checkpoint_file, _fail
     from rdnet.train.checkpoint import read_checkpoint
     where = Path(checkpoint) if checkpoint is not None else STUDY_MODEL
     path = _checkpoint_file(where)
     if path is None:
         hint = "" if checkpoint is not None else " (train it with `dvc repro train_ednccn`, or pass --checkpoint)"
-        raise ConfigError("checkpoint", f"{where}: no EDnCNN model.pt found{hint}")
+        raise ModelNotFoundError("checkpoint", f"{where}: no EDnCNN model.pt found{hint}")
     try:
         ck = read_checkpoint(path)
     except FormatError as e:

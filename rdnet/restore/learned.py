@@ -29,7 +29,7 @@ from typing import Mapping
 
 import numpy as np
 
-from rdnet.errors import ConfigError, FormatError, ValidationError
+from rdnet.errors import ConfigError, FormatError, ModelNotFoundError, ValidationError
 from rdnet.events.core import Events
 from rdnet.events.voxel import voxel_events, voxel_grid
 
@@ -200,7 +200,7 @@ def load_restorer(checkpoint: str | Path | None, *, has_frames: bool, params: Ma
             log.info("restorer %s: the packaged model %s (no study model under %s)", r.name, f,
                      STUDY_MODELS[frames].parent)
             return r
-    raise ConfigError("checkpoint", "no trained restorer: give --checkpoint, run `dvc repro` "
+    raise ModelNotFoundError("checkpoint", "no trained restorer: give --checkpoint, run `dvc repro` "
                       f"(writes {STUDY_MODELS[has_frames]}) or install rdnet with its packaged models")
 
 

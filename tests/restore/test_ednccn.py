@@ -7,12 +7,13 @@ import pytest
 import torch
 
 from rdnet.config import from_dict
-from rdnet.errors import ConfigError
+from rdnet.errors import ConfigError, ModelNotFoundError
 from rdnet.eval.events import match_metrics, polarity_counts
 from rdnet.events import Events
 from rdnet.events.recording import Recording
 from rdnet.restore.ednccn import (EdnccnConfig, EdnccnNet, EdnccnRestorer, FeatureState, event_features,
-                                  fit_f1_threshold, load_ednccn, parameter_count, train_ednccn, window_labels)
+                                  fit_f1_threshold, load_ednccn, parameter_count, train_ednccn, window_labels,
+                                  window_voxels)
 from rdnet.train.checkpoint import make_checkpoint, save_checkpoint
 
 from _streams import edge_noise_hot
@@ -155,11 +156,12 @@ def test_tiny_training_writes_a_checkpoint_that_restores(tmp_path):
 
 
 def test_bad_checkpoints_give_one_config_error(tmp_path):
-    with pytest.raises(ConfigError, match="no EDnCNN model.pt"):
+    with pytest.raises(ModelNotFoundError, match="no EDnCNN model.pt"):      # absent: restore_real skips it
         load_ednccn(tmp_path / "missing")
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
-    with pytest.raises(ConfigError, match="not a readable checkpoint"):
+    with pytest.raises(ConfigError, match="not a readable checkpoint") as err:
         load_ednccn(tmp_path / "junk.pt")
+    assert not isinstance(err.value, ModelNotFoundError)                    # broken: the stage fails
     net = _net()
     args = {"kind": "ednccn", **net.config}
     other = make_checkpoint(net, "restore", {**args, "kind": "restore"}, with_rng=False)
@@ -196,3 +198,18 @@ def test_rdnet_restore_method_ednccn_streams_like_the_whole_stream(tmp_path):
     expected = load_ednccn(tmp_path / "m.pt").filter_stream(ev)
     assert res["method"] == "ednccn" and res["windows"] == 5
     np.testing.assert_array_equal(read_events(tmp_path / "out.h5").array, expected.array)
+
+
+@pytest.mark.parametrize("bins,t0,dur", [(5, 0, 1000), (10, 137, 2500), (3, 900, 100)])
+def test_window_voxels_bin_as_polarity_counts(bins, t0, dur):
+    """The label voxels are the metric's voxels: every window's bincount equals
+    rdnet.eval.events.polarity_counts, events on both window edges included."""
+    rng = np.random.default_rng(bins)
+    n = 3000
+    t = np.sort(np.r_[rng.integers(0, 4000, n - 2), t0, t0 + dur])
+    ev = Events.from_columns(t, rng.integers(0, 9, n), rng.integers(0, 7, n), rng.integers(0, 2, n).astype(np.uint8),
+                             9, 7)
+    i0, i1, v = window_voxels(ev, bins, t0, dur)
+    counts = polarity_counts(ev, bins, t0, dur)
+    assert i1 - i0 == counts.sum() > 0
+    np.testing.assert_array_equal(np.bincount(v, minlength=counts.size), counts.ravel())
