@@ -39,7 +39,7 @@ SECTIONS: dict[str, str] = {
     "calibrate": "rdnet.calib.settings:CalibrateConfig",
     "deblur": "rdnet.deblur.config:DeblurConfig",
     "restore": "rdnet.restore.settings:RestoreConfig",
-    "ednccn": "rdnet.restore.ednccn:EdnccnConfig",
+    "ednccn": "rdnet.restore.settings:EdnccnConfig",
 }
 
 

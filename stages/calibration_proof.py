@@ -11,25 +11,24 @@ import _common
 
 
 def main(args, params):
-    import numpy as np
-
     from rdnet.calib import reliability as rel
-    from rdnet.calib.proof import cases_for, format_table, generator_dir, run_generators, run_proof
+    from rdnet.calib.proof import Block, format_table, generator_blocks, run_blocks
     from rdnet.config import section
     from rdnet.eval.report import write_text_atomic
     from rdnet.sim.interpolate import InterpolateConfig
     cfg = section(params, "calibrate")
     interp = InterpolateConfig(max_upsample=cfg.max_upsample)
-    # every generator from a fresh default_rng(seed): rdnet reports in args.out, circuit in args.out/circuit
-    runs = run_generators(args.out, args.seed, generator=args.generator, quick=args.quick, cfg=cfg,
-                          interpolate=interp, circuit_oversample=args.circuit_oversample)
-    blocks = {gen: (generator_dir(args.out, gen), m) for gen, m in runs.items()}
-    if "rdnet" in runs and args.oversample > 1:
+    # every block from a fresh default_rng(seed): rdnet reports in args.out, circuit in args.out/circuit
+    todo = generator_blocks(args.out, generator=args.generator, quick=args.quick, cfg=cfg, interpolate=interp,
+                            circuit_oversample=args.circuit_oversample)
+    rd = next((b for b in todo if b.key == "rdnet"), None)
+    if rd is not None and args.oversample > 1:
         # the truth from frames rendered denser: the calibration's own interpolation is imperfect
         key = f"oversample{args.oversample}"
-        mo = run_proof(cases_for("rdnet", args.quick)["rdnet"], args.out / key, np.random.default_rng(args.seed),
-                       cfg=cfg, interpolate=interp, oversample=args.oversample)
-        blocks[key] = (args.out / key, mo)
+        todo.append(Block(key, rd.cases, args.out / key, dict(cfg=cfg, interpolate=interp, oversample=args.oversample)))
+    # the longest block (circuit) beside the two rdnet ones
+    runs = run_blocks(todo, args.seed, workers=args.workers)
+    blocks = {b.key: (b.out_dir, runs[b.key]) for b in todo}
     compact = {}
     for key, (folder, m) in blocks.items():
         write_text_atomic(folder / "proof.md", format_table(m) + "\n")
@@ -61,6 +60,8 @@ p.add_argument("--circuit-oversample", type=int, default=4,
                help="circuit truth from frames this many times denser than the recorded ones")
 p.add_argument("--generator", choices=("rdnet", "circuit", "both"), default="both",
                help="model of the true events")
+p.add_argument("--workers", type=int, default=2,
+               help="blocks run at once, one process each (results do not depend on it)")
 p.add_argument("--quick", action="store_true", help="only a small subset (rdnet.calib.proof.QUICK)")
 p.add_argument("--out", type=Path, default=Path("results/calibration/proof"))
 p.add_argument("--metrics", type=Path, default=Path("metrics/calibration_proof.json"))

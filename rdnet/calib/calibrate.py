@@ -73,6 +73,9 @@ def _evidence(c, fit: FitResult) -> str:
         head += (f"not named: its gain is significant but its own statistic ({c.effect.statistic}) moved only "
                  f"{c.signature_z:.1f} seed std ({c.signature_before:.3f} -> {c.signature_after:.3f}; the signature "
                  f"gate needs > {SIGNATURE_Z:g}): a structural difference, not this effect; ")
+    if c.by_signature:
+        head += (f"significant by its own statistic ({c.effect.statistic} {c.signature_before:.3f} -> "
+                 f"{c.signature_after:.3f}, {c.signature_z:.1f} seed std; gain > 0 in every seed); ")
     return (head + f"held-out discrepancy {c.before_held:.3f} -> {c.evaluation.held_mean:.3f} with it "
             f"({c.ablated_held:.3f} in its own fit with it switched off); credited gain {c.gain:.3f} "
             f"= {c.z:.1f} x seed std {c.spread:.3f} ({100 * c.relative:.1f} %, round {c.round}); "
@@ -195,7 +198,8 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
             "screen_gain": float(c.screen_gain) if c else 0.0,
             "statistic": eff.statistic,
             "signature": ({"heldout_before": _finite(c.signature_before), "heldout_after": _finite(c.signature_after),
-                           "z": _finite(c.signature_z), "vetoed": bool(c.vetoed)} if c else None),
+                           "z": _finite(c.signature_z), "vetoed": bool(c.vetoed),
+                           "significant_by_it": bool(c.by_signature)} if c else None),
         })
     effects.sort(key=lambda e: (not e["missing"], e["rank"] or 99))
 

@@ -37,8 +37,12 @@ Steps:
    must exceed ``significance`` x the seed spread and ``min_relative_gain`` of the held-out
    discrepancy after the basic refit, and the held-out term of the effect's own statistic
    must drop by more than ``SIGNATURE_Z`` of its seed spread (the signature gate; a
-   candidate that fails only the gate is *vetoed* and skipped in the selection). The best
-   significant candidate is added; the other
+   candidate that fails only the gate is *vetoed* and skipped in the selection). A
+   candidate can also be significant *by its signature*: its own statistic drops by more
+   than ``signature_significance`` of its seed spread and its held-out gain is positive in
+   every seed and above ``min_relative_gain`` (the seed spread of the total discrepancy
+   also carries the structural mismatch the effect does not touch, which is no evidence
+   against the effect). The best significant candidate is added; the other
    fitted candidates that helped are tried again at their fit on top of it, and fitted
    again if still plausible (at most ``max_effects`` rounds). Effects that do not pass the
    screen are reported with their search-level numbers and cannot be named.
@@ -552,6 +556,7 @@ class Candidate:
     signature_after: float = float("nan")   # ... with the effect (diagnostic; not used to name)
     signature_z: float = float("nan")       # its drop / its seed spread (as ``z``, ablation included)
     vetoed: bool = False        # significant by its gain, but its own statistic did not move
+    by_signature: bool = False  # significant by its own statistic (calibrate.signature_significance)
 
 
 def _drop(before: np.ndarray, after: np.ndarray) -> tuple[float, float]:
@@ -598,15 +603,34 @@ def score(cand: Candidate, before: Evaluation, cfg, ablated: Evaluation | None =
     # the signature gate (a statistic the recording lacks, NaN, cannot veto)
     if cand.significant and cand.signature_z <= SIGNATURE_Z:
         cand.significant, cand.vetoed = False, True
-    zc = 1.0 / (1.0 + math.exp(-min(50.0, max(-50.0, cand.z - cfg.significance))))
+    # the second way: the effect's own statistic moved far beyond its seed spread and the
+    # total gain is real in every seed (calibrate.signature_significance)
+    cand.by_signature = bool(
+        not cand.significant and not cand.vetoed and cfg.signature_significance > 0
+        and cand.relative > cfg.min_relative_gain and cand.signature_z > cfg.signature_significance
+        and _gains_in_every_seed(before, after) and (ablated is None or _gains_in_every_seed(ablated, after)))
+    cand.significant = cand.significant or cand.by_signature
+    zc = _sigmoid(cand.z - cfg.significance)
+    if cand.by_signature:
+        zc = _sigmoid(cand.signature_z - cfg.signature_significance)
     rel_scale = max(cfg.min_relative_gain, 1e-3)
-    rc = 1.0 / (1.0 + math.exp(-min(50.0, max(-50.0, 5.0 * (cand.relative - cfg.min_relative_gain) / rel_scale))))
+    rc = _sigmoid(5.0 * (cand.relative - cfg.min_relative_gain) / rel_scale)
     cand.confidence = float(min(zc, rc))
     if cand.vetoed:
         # <= 0.25, falling as the own statistic gets worse
-        sc = 1.0 / (1.0 + math.exp(-min(50.0, max(-50.0, cand.signature_z - SIGNATURE_Z))))
-        cand.confidence = float(min(cand.confidence, 0.5 * sc))
+        cand.confidence = float(min(cand.confidence, 0.5 * _sigmoid(cand.signature_z - SIGNATURE_Z)))
     return cand
+
+
+def _sigmoid(x: float) -> float:
+    return 1.0 / (1.0 + math.exp(-min(50.0, max(-50.0, x))))
+
+
+def _gains_in_every_seed(before: Evaluation, after: Evaluation) -> bool:
+    """Whether the held-out discrepancy drops in every seed (the evaluations share their
+    seeds: common random numbers, so seed k of one is paired with seed k of the other)."""
+    n = min(before.held.size, after.held.size)
+    return bool(n > 0 and np.all(before.held[:n] - after.held[:n] > 0))
 
 
 def _signature(cand: Candidate, before: Evaluation, ablated: Evaluation | None) -> None:
@@ -727,7 +751,7 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
                 v = dict(min(evs, key=lambda e: e.fit_mean).values)
                 c = score(Candidate(eff, v, obj(v), round=rnd, screen_gain=sgain, fitted=False),
                           obj(current), cfg, obj(ablate(v, eff)), reference=obj(values).held_mean)
-                c.significant = c.vetoed = False
+                c.significant = c.vetoed = c.by_signature = False
                 c.confidence = min(c.confidence, SCREENED_CONFIDENCE)
             log.info("round %d %-19s gain %.4f (z %.1f, rel %.3f)%s %s", rnd, eff.name, c.gain, c.z, c.relative,
                      "" if c.fitted else " [screened out]",

@@ -341,20 +341,53 @@ def generator_dir(out_dir: str | Path, generator: str) -> Path:
     return Path(out_dir) if generator == "rdnet" else Path(out_dir) / generator
 
 
-def run_generators(out_dir: str | Path | None, seed: int, *, generator: str = "both", quick: bool = False,
-                   names: Sequence[str] | None = None, **kw) -> dict[str, dict]:
-    """:func:`run_proof` on the case lists of :func:`cases_for` (only the cases in ``names``
-    when given; a generator left without cases is skipped), each generator from a fresh
-    ``default_rng(seed)`` (so the rdnet cases keep their results whatever else runs); the
-    reports go to :func:`generator_dir`. ``kw``: further :func:`run_proof` arguments."""
-    out = {}
+@dataclass(frozen=True)
+class Block:
+    """A list of cases run by :func:`run_proof` from a fresh ``default_rng(seed)`` (so its
+    results do not depend on what else runs, nor where), reports in ``out_dir``; ``kw``:
+    further :func:`run_proof` arguments."""
+
+    key: str
+    cases: tuple
+    out_dir: Path | None
+    kw: dict = field(default_factory=dict)
+
+
+def _run_block(block: Block, seed: int) -> tuple[str, dict]:
+    return block.key, run_proof(list(block.cases), block.out_dir, np.random.default_rng(seed), **block.kw)
+
+
+def run_blocks(blocks: Sequence[Block], seed: int, workers: int = 1) -> dict[str, dict]:
+    """:func:`run_proof` of every block, in ``workers`` processes (each block is independent
+    and starts from its own generator, so the results equal a serial run's); returns
+    ``{block.key: metrics}`` in the order of ``blocks``."""
+    if workers <= 1 or len(blocks) <= 1:
+        return dict(_run_block(b, seed) for b in blocks)
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+    with ProcessPoolExecutor(max_workers=min(workers, len(blocks)), mp_context=mp.get_context("fork")) as ex:
+        futures = [ex.submit(_run_block, b, seed) for b in blocks]
+        return dict(f.result() for f in futures)
+
+
+def generator_blocks(out_dir: str | Path | None, *, generator: str = "both", quick: bool = False,
+                     names: Sequence[str] | None = None, **kw) -> list[Block]:
+    """One :class:`Block` per generator of :func:`cases_for` (only the cases in ``names``
+    when given; a generator left without cases is skipped); reports go to
+    :func:`generator_dir`. ``kw``: further :func:`run_proof` arguments."""
+    blocks = []
     for gen, cases in cases_for(generator, quick).items():
-        cases = [c for c in cases if names is None or c.name in names]
-        if not cases:
-            continue
-        d = None if out_dir is None else generator_dir(out_dir, gen)
-        out[gen] = run_proof(cases, d, np.random.default_rng(seed), **kw)
-    return out
+        cases = tuple(c for c in cases if names is None or c.name in names)
+        if cases:
+            blocks.append(Block(gen, cases, None if out_dir is None else generator_dir(out_dir, gen), dict(kw)))
+    return blocks
+
+
+def run_generators(out_dir: str | Path | None, seed: int, *, generator: str = "both", quick: bool = False,
+                   names: Sequence[str] | None = None, workers: int = 1, **kw) -> dict[str, dict]:
+    """:func:`run_blocks` of :func:`generator_blocks`: each generator from a fresh
+    ``default_rng(seed)`` (so the rdnet cases keep their results whatever else runs)."""
+    return run_blocks(generator_blocks(out_dir, generator=generator, quick=quick, names=names, **kw), seed, workers)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -59,7 +59,8 @@ def markdown(cal: Calibration, figures: list[str]) -> str:
     lines += ["## Effects the base config leaves out", "",
               "Own statistic: the held-out term of the statistic that reveals the effect, before -> after "
               "adding it, and its drop in seed std (z; the signature gate needs > "
-              f"{SIGNATURE_Z:g} to name it).", "",
+              f"{SIGNATURE_Z:g} to name it; a drop beyond calibrate.signature_significance with a gain "
+              "in every seed names it on its own).", "",
               "| effect | missing | confidence | rank | parameters | held-out gain | own statistic | where |",
               "|---|---|---|---|---|---|---|---|"]
     for e in r["effects"]:
@@ -88,7 +89,7 @@ def markdown(cal: Calibration, figures: list[str]) -> str:
               f"ON fraction {m['static_on_fraction']['real']:.2f} vs {m['static_on_fraction']['sim']:.2f}",
               f"- moving pixels ON fraction: {m['moving_on_fraction']['real']:.3f} vs {m['moving_on_fraction']['sim']:.3f}",
               f"- rate cross-correlation lag (real after sim): {m['lag_us'] / 1000:.2f} ms",
-              f"- worst coarse cells (x, y, log sim/real): " + ", ".join(
+              "- worst coarse cells (x, y, log sim/real): " + ", ".join(
                   f"({c['x']}, {c['y']}, {c['log_ratio_sim_real']:+.2f})" for c in m["worst_cells"]), ""]
     c = r["consistency"]
     lines += ["## Event-frame consistency", "",
@@ -116,13 +117,15 @@ def markdown(cal: Calibration, figures: list[str]) -> str:
 def signature_cell(effect: dict) -> str:
     """The "own statistic" cell of an effect of report.json: its statistic, the held-out
     term before -> after (``effect["signature"]``), the z of the drop, and "vetoed" when the
-    signature gate turned a significant gain down; "-" for an effect never evaluated."""
+    signature gate turned a significant gain down, "significant by it" when the statistic's
+    own drop named the effect (``calibrate.signature_significance``); "-" for an effect never
+    evaluated."""
     sig = effect.get("signature")
     if not sig:
         return "-"
     z = "" if sig["z"] is None else f" (z {sig['z']:.1f})"
     return (f"{effect['statistic']} {_f(sig['heldout_before'])} -> {_f(sig['heldout_after'])}{z}"
-            + (", vetoed" if sig["vetoed"] else ""))
+            + (", vetoed" if sig["vetoed"] else "") + (", significant by it" if sig.get("significant_by_it") else ""))
 
 
 def _f(v) -> str:
@@ -163,7 +166,6 @@ def _plot_statistic(ax, name: str, cal: Calibration) -> None:
         ax.set_xlabel("quantile band" + (f" {TAIL_BANDS}" if name == "pixel_tail" else ""))
         ax.set_ylabel("mean |ON - OFF| rate (Hz)" if name == "pixel_tail" else "mean rate (Hz)")
     elif name in ("static_rate", "static_on_fraction", "on_fraction"):
-        keys = ["static_rate", "static_on_fraction", "on_fraction"]
         w = 0.25
         for i, (lab, s, col) in enumerate(series):
             vals = [float(s["static_rate"]) / max(float(cal.real_stats["static_rate"]), 1e-9),

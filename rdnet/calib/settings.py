@@ -25,7 +25,13 @@ class CalibrateConfig:
     is *static*. ``significance``: an effect is named missing only if its held-out gain
     exceeds this many standard deviations of the discrepancy between seeds;
     ``min_relative_gain``: and this fraction of the held-out discrepancy left after the
-    basic refit. ``max_effects``: forward selection stops after this many.
+    basic refit. ``signature_significance``: the second way to be named (0 = off): an effect
+    whose own statistic (``Effect.statistic``) drops by more than this many of *its* seed
+    spreads, whose held-out gain is positive in every seed (paired: the candidates share the
+    seeds) and above ``min_relative_gain``, is named even when its total gain is within
+    ``significance`` seed spreads: the total's seed spread also carries the terms of the
+    structural mismatch that the effect does not touch (:func:`rdnet.calib.fit.score`).
+    ``max_effects``: forward selection stops after this many.
     ``search_points``: grid points of the screen of an effect without a data-driven first
     guess (log-spaced over its range; its weak end is not simulated); ``refine_steps``:
     evaluations of each golden-section refinement. ``screen_gain``: an effect is fitted
@@ -66,6 +72,7 @@ class CalibrateConfig:
     static_contrast: float = 0.15
     significance: float = 3.0
     min_relative_gain: float = 0.05
+    signature_significance: float = 10.0
     max_effects: int = 3
     search_points: int = 5
     refine_steps: int = 4
@@ -89,7 +96,7 @@ class CalibrateConfig:
             raise ConfigError("calibrate.search_seeds", f"must be in [1, seeds={self.seeds}], got {self.search_seeds}")
         for key in ("pixel_stride", "time_bin_us", "grid_px", "intensity_bins", "search_points", "max_fitted"):
             positive(f"calibrate.{key}", getattr(self, key), allow_zero=False)
-        for key in ("static_contrast", "significance", "min_relative_gain", "max_effects", "screen_gain",
+        for key in ("static_contrast", "significance", "min_relative_gain", "signature_significance", "max_effects", "screen_gain",
                     "refine_steps", "max_lag_us", "max_sim_steps", "search_max_sim_steps", "max_upsample",
                     "threads"):
             positive(f"calibrate.{key}", getattr(self, key))

@@ -41,7 +41,6 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
 
@@ -51,9 +50,9 @@ import torch
 from torch import nn
 
 from rdnet.baselines.stcf import NEVER_US
-from rdnet.config import positive
 from rdnet.errors import ConfigError, FormatError, ModelNotFoundError, ValidationError
 from rdnet.events.core import Events
+from rdnet.restore.settings import EdnccnConfig  # noqa: F401  (the ``ednccn`` params section; re-exported)
 
 log = logging.getLogger(__name__)
 
@@ -61,47 +60,6 @@ TASK = "ednccn"
 #: where ``dvc repro`` (stage train_ednccn) writes the classifier, relative to the working directory.
 STUDY_MODEL = Path("models/ednccn")
 DECISION_RULE = "max_f1_heldout"
-
-
-# --------------------------------------------------------------------------------------
-# configuration (params.yaml section ``ednccn``)
-
-@dataclass(frozen=True)
-class EdnccnConfig:
-    """``ednccn`` section of params.yaml. Features: ``radius`` (patch (2r+1)^2),
-    ``depth`` (timestamps per pixel and polarity), ``tau_us`` (time scale of the decay).
-    Network: ``conv_channels`` (3x3 convolutions, no padding), ``hidden`` (fully connected
-    widths). Training: ``max_train_events`` (events drawn from the training windows),
-    ``epochs``, ``batch_size``, ``lr`` (Adam, cosine decay to 0), ``val_sequences`` (last
-    training sequences held out to fit the keep threshold), ``seed``, ``device``,
-    ``threads`` (torch CPU threads; 0 = torch default)."""
-
-    radius: int = 3
-    depth: int = 2
-    tau_us: int = 10_000
-    conv_channels: tuple[int, ...] = (16, 32)
-    hidden: tuple[int, ...] = (192, 96)
-    max_train_events: int = 400_000
-    epochs: int = 4
-    batch_size: int = 512
-    lr: float = 0.002
-    val_sequences: int = 2
-    seed: int = 0
-    device: str = "auto"
-    threads: int = 1
-
-    def __post_init__(self):
-        for key in ("radius", "depth", "tau_us", "max_train_events", "epochs", "batch_size", "val_sequences"):
-            positive(f"ednccn.{key}", getattr(self, key), allow_zero=False)
-        positive("ednccn.lr", self.lr, allow_zero=False)
-        positive("ednccn.threads", self.threads)
-        if any(int(c) < 1 for c in self.conv_channels) or any(int(h) < 1 for h in self.hidden):
-            raise ConfigError("ednccn.hidden", "conv_channels and hidden widths must be >= 1")
-        if 2 * self.radius + 1 - 2 * len(self.conv_channels) < 1:
-            raise ConfigError("ednccn.conv_channels", f"{len(self.conv_channels)} unpadded 3x3 convolutions do "
-                              f"not fit a {2 * self.radius + 1}-pixel patch (radius {self.radius})")
-        if self.device not in ("cpu", "cuda", "auto"):
-            raise ConfigError("ednccn.device", f"must be cpu, cuda or auto, got {self.device!r}")
 
 
 # --------------------------------------------------------------------------------------

@@ -1,4 +1,6 @@
-"""``restore`` section of params.yaml: how ``rdnet restore`` cleans a recording."""
+"""``restore`` section of params.yaml (how ``rdnet restore`` cleans a recording) and
+``ednccn`` (the EDnCNN-style baseline of :mod:`rdnet.restore.ednccn`). Neither imports
+torch: ``rdnet restore`` with a classical method never loads it."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -73,3 +75,41 @@ class RestoreConfig:
             raise ConfigError("restore.gef_mode", f"must be mask or filter, got {self.gef_mode!r}")
         if self.device not in ("cpu", "cuda", "auto"):
             raise ConfigError("restore.device", f"must be cpu, cuda or auto, got {self.device!r}")
+
+
+@dataclass(frozen=True)
+class EdnccnConfig:
+    """``ednccn`` section of params.yaml. Features: ``radius`` (patch (2r+1)^2),
+    ``depth`` (timestamps per pixel and polarity), ``tau_us`` (time scale of the decay).
+    Network: ``conv_channels`` (3x3 convolutions, no padding), ``hidden`` (fully connected
+    widths). Training: ``max_train_events`` (events drawn from the training windows),
+    ``epochs``, ``batch_size``, ``lr`` (Adam, cosine decay to 0), ``val_sequences`` (last
+    training sequences held out to fit the keep threshold), ``seed``, ``device``,
+    ``threads`` (torch CPU threads; 0 = torch default)."""
+
+    radius: int = 3
+    depth: int = 2
+    tau_us: int = 10_000
+    conv_channels: tuple[int, ...] = (16, 32)
+    hidden: tuple[int, ...] = (192, 96)
+    max_train_events: int = 400_000
+    epochs: int = 4
+    batch_size: int = 512
+    lr: float = 0.002
+    val_sequences: int = 2
+    seed: int = 0
+    device: str = "auto"
+    threads: int = 1
+
+    def __post_init__(self):
+        for key in ("radius", "depth", "tau_us", "max_train_events", "epochs", "batch_size", "val_sequences"):
+            positive(f"ednccn.{key}", getattr(self, key), allow_zero=False)
+        positive("ednccn.lr", self.lr, allow_zero=False)
+        positive("ednccn.threads", self.threads)
+        if any(int(c) < 1 for c in self.conv_channels) or any(int(h) < 1 for h in self.hidden):
+            raise ConfigError("ednccn.hidden", "conv_channels and hidden widths must be >= 1")
+        if 2 * self.radius + 1 - 2 * len(self.conv_channels) < 1:
+            raise ConfigError("ednccn.conv_channels", f"{len(self.conv_channels)} unpadded 3x3 convolutions do "
+                              f"not fit a {2 * self.radius + 1}-pixel patch (radius {self.radius})")
+        if self.device not in ("cpu", "cuda", "auto"):
+            raise ConfigError("ednccn.device", f"must be cpu, cuda or auto, got {self.device!r}")

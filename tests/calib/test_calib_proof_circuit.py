@@ -94,3 +94,26 @@ def test_run_generators_fresh_rng_per_generator_folders_and_names(monkeypatch, t
     # only the named cases; a generator left without any is skipped; no folder without out_dir
     out = proof.run_generators(None, 5, names=["null_thresholds"])
     assert list(out) == ["rdnet"] and calls[0][:2] == (["null_thresholds"], None)
+
+
+def test_run_blocks_in_processes_equals_serial(monkeypatch, tmp_path):
+    """The stage runs its blocks in worker processes: same results, same order, each block
+    from its own default_rng(seed) (run_proof stubbed; the stub reaches the forked workers)."""
+    import os
+
+    import rdnet.calib.proof as proof
+
+    def fake(cases, out_dir, rng, **kw):
+        return {"cases": [c.name for c in cases], "out": str(out_dir), "draw": int(rng.integers(1 << 30)),
+                "kw": kw, "pid": os.getpid()}
+
+    monkeypatch.setattr(proof, "run_proof", fake)
+    blocks = proof.generator_blocks(tmp_path, quick=True, interpolate="i")
+    blocks.append(proof.Block("oversample4", blocks[0].cases, tmp_path / "oversample4", {"oversample": 4}))
+    serial = proof.run_blocks(blocks, 5, workers=1)
+    parallel = proof.run_blocks(blocks, 5, workers=2)
+    assert list(serial) == list(parallel) == ["rdnet", "circuit", "oversample4"]
+    strip = {k: {f: v for f, v in m.items() if f != "pid"} for k, m in parallel.items()}
+    assert strip == {k: {f: v for f, v in m.items() if f != "pid"} for k, m in serial.items()}
+    assert {m["pid"] for m in parallel.values()} != {os.getpid()}      # ran in the workers
+    assert len({m["draw"] for m in parallel.values()}) == 1              # every block: default_rng(5)

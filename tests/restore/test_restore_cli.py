@@ -221,8 +221,10 @@ def test_streamed_restore_equals_loaded_restore(tmp_path, monkeypatch, method):
 def test_classical_restore_does_not_import_torch():
     import subprocess
     import sys
+    # every params section is built when the CLI loads params.yaml: none may import torch
     code = ("import sys; from rdnet.restore.run import restore_recording; import rdnet.cli.restore; "
             "from rdnet.restore.base import get_restorer; get_restorer('baf', {}, has_frames=False); "
+            "from rdnet.config import SECTIONS, section_class; [section_class(n) for n in SECTIONS]; "
             "print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
