@@ -52,17 +52,17 @@ def _compact(m):
                       for r in m["cases"]}}
 
 
-p = _common.parser(__doc__)
-p.add_argument("--seed", type=int, default=2024)
-p.add_argument("--oversample", type=int, default=4,
-               help="also run the rdnet proof with the truth from frames this many times denser (1: skip)")
-p.add_argument("--circuit-oversample", type=int, default=4,
-               help="circuit truth from frames this many times denser than the recorded ones")
-p.add_argument("--generator", choices=("rdnet", "circuit", "both"), default="both",
-               help="model of the true events")
-p.add_argument("--workers", type=int, default=2,
-               help="blocks run at once, one process each (results do not depend on it)")
-p.add_argument("--quick", action="store_true", help="only a small subset (rdnet.calib.proof.QUICK)")
-p.add_argument("--out", type=Path, default=Path("results/calibration/proof"))
-p.add_argument("--metrics", type=Path, default=Path("metrics/calibration_proof.json"))
-_common.run(main, p)
+def _parser():
+    from rdnet.calib.proof import add_proof_arguments
+    p = _common.parser(__doc__)
+    add_proof_arguments(p)
+    p.add_argument("--oversample", type=int, default=4,
+                   help="also run the rdnet proof with the truth from frames this many times denser (1: skip)")
+    p.add_argument("--workers", type=int, default=2,
+                   help="blocks run at once, one process each (results do not depend on it)")
+    p.add_argument("--out", type=Path, default=Path("results/calibration/proof"))
+    p.add_argument("--metrics", type=Path, default=Path("metrics/calibration_proof.json"))
+    return p
+
+
+_common.run(main, _parser())

@@ -299,7 +299,8 @@ def _guess(obj: Objective, values: dict, effect: Effect) -> dict | None:
     """A first guess for effects whose parameters can be read off the statistics
     (hot pixels: pixels whose net ON - OFF rate exceeds any simulated one; latency: the rate
     cross-correlation lag; shot noise / leak: the excess (ON - OFF for leak) event rate
-    of static pixels); None = use the grid."""
+    of static pixels; ON/OFF asymmetry: the ON:OFF odds of the moving pixels, real against
+    simulated); None = use the grid."""
     ctx = obj.ctx
     if effect.name == "latency":
         sim = obj.stats_all(values)
@@ -330,6 +331,21 @@ def _guess(obj: Objective, values: dict, effect: Effect) -> dict | None:
         p = effect.params[0]
         v = dict(values)
         v[p.key] = float(np.clip(excess, p.lo, p.hi))
+        return v
+    if effect.name == "onoff_asymmetry":
+        # theta_on = theta0 sqrt(r), theta_off = theta0 / sqrt(r): each pixel's ON count goes
+        # as 1 / sqrt(r) and its OFF count as sqrt(r), so the ON:OFF odds of the moving pixels
+        # go as 1 / r; the guess scales the current ratio by the simulated / real odds
+        def odds(stats) -> float:
+            f = float(stats["on_fraction"])
+            return f / max(1.0 - f, 1e-9)
+        sim, real = obj.stats_all(values), obj.real_all
+        if min(float(sim["moving_count"]), float(real["moving_count"])) < 100:
+            return None
+        p = effect.params[0]
+        r = values.get(p.key, OFF.get(p.key, 1.0)) * odds(sim) / max(odds(real), 1e-9)
+        v = dict(values)
+        v[p.key] = float(np.clip(r, p.lo, p.hi))
         return v
     if effect.name == "hot_pixels":
         sim = obj.stats_all(values)["net_rate"].ravel()
@@ -768,9 +784,7 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
             break
         selected.append(best)
         current, cur_eval = best.values, best.evaluation
-        # only fitted candidates that helped at all are worth another round
-        helped = {c.effect.name for c in round_c[1:] if c.fitted and c.gain > 0}
-        remaining = [e for e in remaining if e.name in helped]
+        remaining = next_round(remaining, round_c, best)
     if selected:
         # step 5: polish the selected config (thresholds, the named effects and the
         # configured ones, in a narrow range; additive ones on the final pixel sample); kept
@@ -797,6 +811,15 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
             "count_slope": beta, "rounds": rnd}
     return FitResult(base=base, basic=basic, final=cur_eval, basic_values=values, final_values=current,
                      selected=selected, candidates=candidates, first_round=first_round, n_sims=n, search=info)
+
+
+def next_round(remaining: list, round_c: list, best: Candidate) -> list:
+    """The effects worth another round after ``best`` was added: the other fitted candidates
+    that helped at all. ``best`` is not always ``round_c[0]`` (a vetoed candidate is
+    skipped), and is never tried again: re-scored on top of itself it would gain nothing
+    and its report entry would lose the numbers it was named with."""
+    helped = {c.effect.name for c in round_c if c is not best and c.fitted and c.gain > 0}
+    return [e for e in remaining if e.name in helped]
 
 
 def _fmt(values: dict) -> str:

@@ -390,6 +390,17 @@ def run_generators(out_dir: str | Path | None, seed: int, *, generator: str = "b
     return run_blocks(generator_blocks(out_dir, generator=generator, quick=quick, names=names, **kw), seed, workers)
 
 
+def add_proof_arguments(ap) -> None:
+    """The options this module's ``main`` and the ``calibration_proof`` stage share (each
+    adds its own ``--oversample``: here it replaces the rdnet truth, there it adds a block)."""
+    ap.add_argument("--seed", type=int, default=2024, help="seed of the scenes and true events")
+    ap.add_argument("--circuit-oversample", type=int, default=4,
+                    help="circuit truth from frames this many times denser than the recorded ones")
+    ap.add_argument("--generator", choices=("rdnet", "circuit", "both"), default="both",
+                    help="model of the true events")
+    ap.add_argument("--quick", action="store_true", help=f"only the subset {', '.join(QUICK)}")
+
+
 def main(argv: list[str] | None = None) -> int:
     """``python -m rdnet.calib.proof OUT_DIR``: run the proof, write OUT_DIR/proof.json and
     one report per case (circuit cases under OUT_DIR/circuit), print the tables."""
@@ -398,14 +409,9 @@ def main(argv: list[str] | None = None) -> int:
     from rdnet.sim.interpolate import InterpolateConfig
     ap = argparse.ArgumentParser(prog="python -m rdnet.calib.proof", description=main.__doc__)
     ap.add_argument("out", type=Path)
-    ap.add_argument("--seed", type=int, default=2024, help="seed of the scenes and true events")
+    add_proof_arguments(ap)
     ap.add_argument("--oversample", type=int, default=1,
                     help="rdnet truth from frames this many times denser (1: same)")
-    ap.add_argument("--circuit-oversample", type=int, default=4,
-                    help="circuit truth from frames this many times denser than the recorded ones")
-    ap.add_argument("--generator", choices=("rdnet", "circuit", "both"), default="both",
-                    help="model of the true events")
-    ap.add_argument("--quick", action="store_true", help=f"only the subset {', '.join(QUICK)}")
     ap.add_argument("--cases", nargs="*", default=None, help="case names (default: all of the generator)")
     ap.add_argument("--max-upsample", type=int, default=16, help="interpolate.max_upsample of the scenes")
     args = ap.parse_args(argv)

@@ -89,3 +89,17 @@ def test_own_statistic_names_an_effect_whose_total_gain_is_within_the_seed_sprea
     after_big = evaluation({"pixel_tail": [0.10, 0.12, 0.08], "rate_map": [50.0, 60.0, 55.0]})
     c_rel = score(Candidate(EFFECTS["hot_pixels"], {}, after_big), big, cfg)
     assert c_rel.relative < cfg.min_relative_gain and not c_rel.significant
+
+
+def test_next_round_drops_the_added_effect_even_when_a_vetoed_one_ranked_above_it():
+    from rdnet.calib.fit import next_round
+    before = evaluation({"lag": [1.0, 1.1, 0.9]})
+    names = ["bandwidth", "refractory_period", "latency", "shot_noise"]
+    cands = [Candidate(EFFECTS[n], {}, before, fitted=(n != "shot_noise"), gain=g)
+             for n, g in zip(names, (0.9, 0.5, 0.1, 0.2))]
+    cands[0].vetoed = True                       # the top one is skipped: the second is added
+    best = next(c for c in cands if not c.vetoed)
+    assert best.effect.name == "refractory_period"
+    left = next_round([EFFECTS[n] for n in names], cands, best)
+    # the vetoed one and the other fitted helper stay; the added one and the unfitted one go
+    assert [e.name for e in left] == ["bandwidth", "latency"]
