@@ -25,7 +25,8 @@ from tqdm.auto import tqdm
 from rdnet.calib.consistency import consistency
 from rdnet.calib.context import CalibContext, build_context, subsample_context
 from rdnet.calib.effects import absent_effects, apply
-from rdnet.calib.fit import SIGNATURE_Z, FitResult, Objective, SimulateFn, calibrate_fit, fit_basic, screen_gains
+from rdnet.calib.fit import (SIGNATURE_Z, FitResult, Objective, SimulateFn, calibrate_fit, fit_basic, look_alikes,
+                             screen_gains)
 from rdnet.calib.locate import residuals, where
 from rdnet.calib.settings import CalibrateConfig
 from rdnet.calib.stats import STATISTICS
@@ -180,6 +181,8 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
 
     rank = {c.effect.name: i + 1 for i, c in enumerate(fit.first_round)}
     selected = {c.effect.name for c in fit.selected}
+    alike = {c.effect.name: look_alikes(c, fit.rounds[c.round - 1], cfg) for c in fit.selected
+             if 0 < c.round <= len(fit.rounds)}
     effects = []
     for eff in absent_effects(degrade):
         c = fit.candidates.get(eff.name)
@@ -200,6 +203,11 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
             "signature": ({"heldout_before": _finite(c.signature_before), "heldout_after": _finite(c.signature_after),
                            "z": _finite(c.signature_z), "vetoed": bool(c.vetoed),
                            "significant_by_it": bool(c.by_signature)} if c else None),
+            # named effects: the candidates of the same round the data do not tell apart from it
+            "look_alikes": [{"name": o.effect.name, "heldout_after": o.evaluation.held_mean,
+                             "margin": margin, "margin_seed_std": spread,
+                             "separate_with": separating_measurement(eff.name, o.effect.name)}
+                            for o, margin, spread in alike.get(eff.name, [])],
         })
     effects.sort(key=lambda e: (not e["missing"], e["rank"] or 99))
 
@@ -318,6 +326,35 @@ def noise_floor(obj: Objective, values: dict) -> float:
         return 0.0
     held = [st.aggregate(obj.summary(values, s), obj.ctx, obj.ctx.held) for s in obj.seeds]
     return float(np.mean([st.discrepancy(a, b, obj.ctx)[0] for a, b in combinations(held, 2)]))
+
+
+#: what would tell a pair of look-alike effects apart (README "What is still open (issue 12)")
+SEPARATING_MEASUREMENTS = (
+    ({"refractory_period", "readout_saturation"},
+     "a fine-binned inter-event-interval histogram of the busiest pixels (a refractory period leaves "
+     "none below it, a period readout only thins them), or a small flashing spot on a still, dark "
+     "background (one pixel busy, the array idle)"),
+    ({"latency", "bandwidth", "timestamp_jitter"},
+     "a flashing LED filmed at two or three brightnesses: a bandwidth lag grows as the light falls, a "
+     "latency does not, jitter spreads the step instead of shifting it"),
+    ({"onoff_asymmetry", "threshold_mismatch"},
+     "a uniform full-field flicker (every pixel sees the same log change): each pixel's ON and OFF "
+     "counts directly"),
+    ({"hot_pixels", "threshold_mismatch", "onoff_asymmetry"},
+     "a still scene (nothing moves) for a second or more: hot pixels keep firing at their rate, while "
+     "threshold mismatch and ON/OFF asymmetry only show where the light changes"),
+    ({"leak_events", "shot_noise", "hot_pixels"},
+     "a static scene recorded in the dark (lens cap) and lit: leak grows with light, shot noise is "
+     "strongest in the dark, hot pixels stay a few pixels far above the rest"),
+)
+
+
+def separating_measurement(a: str, b: str) -> str:
+    """The recording that would separate effects ``a`` and ``b`` (:data:`SEPARATING_MEASUREMENTS`)."""
+    for pair, text in SEPARATING_MEASUREMENTS:
+        if a in pair and b in pair:
+            return text
+    return "a recording that drives one of the two effects and not the other"
 
 
 def finding(report: dict) -> str:

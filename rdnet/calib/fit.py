@@ -693,6 +693,7 @@ class FitResult:
     first_round: list        # Candidates of round 1 sorted by gain (the ranking)
     n_sims: int
     search: dict = field(default_factory=dict)   # search-level bookkeeping for the report
+    rounds: list = field(default_factory=list)   # every round's Candidates (fitted first, by gain)
 
 
 def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objective | None = None,
@@ -728,6 +729,7 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
     selected: list[Candidate] = []
     candidates: dict[str, Candidate] = {}
     first_round: list[Candidate] = []
+    rounds: list[list[Candidate]] = []
     rnd = 0
     while remaining and len(selected) < cfg.max_effects:
         rnd += 1
@@ -776,6 +778,7 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
             candidates[eff.name] = c
         # fitted candidates first (scored at the final level), then the screened-out ones
         round_c.sort(key=lambda c: (not c.fitted, -c.gain))
+        rounds.append(list(round_c))
         if rnd == 1:
             first_round = list(round_c)
         # a vetoed candidate (its gain without its signature) is skipped, not a stop
@@ -810,7 +813,23 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
             "kernel_runs": search.engine.n_kernel + (final.engine.n_kernel if final.engine is not search.engine else 0),
             "count_slope": beta, "rounds": rnd}
     return FitResult(base=base, basic=basic, final=cur_eval, basic_values=values, final_values=current,
-                     selected=selected, candidates=candidates, first_round=first_round, n_sims=n, search=info)
+                     selected=selected, candidates=candidates, first_round=first_round, n_sims=n, search=info,
+                     rounds=rounds)
+
+
+def look_alikes(chosen: Candidate, round_c: list, cfg) -> list[tuple[Candidate, float, float]]:
+    """The other fitted, not vetoed candidates of ``chosen``'s round that the held-out data do
+    not tell apart from it: ``chosen``'s held-out discrepancy is not below theirs by more than
+    ``cfg.significance`` seed spreads (the same seeds, so per seed; :func:`_drop`). Returns
+    ``(candidate, margin, spread)``: how much better ``chosen`` fits, and the seed spread."""
+    out = []
+    for o in round_c:
+        if o is chosen or not o.fitted or o.vetoed or o.effect.name == chosen.effect.name:
+            continue
+        margin, spread = _drop(o.evaluation.held, chosen.evaluation.held)
+        if margin < cfg.significance * spread:
+            out.append((o, margin, spread))
+    return out
 
 
 def next_round(remaining: list, round_c: list, best: Candidate) -> list:

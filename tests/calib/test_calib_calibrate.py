@@ -89,6 +89,12 @@ def test_report_schema_and_files(hot_cal, tmp_path):
     assert hot["statistic"] == EFFECTS["hot_pixels"].statistic and sig["heldout_after"] < sig["heldout_before"]
     row = next(ln for ln in md.splitlines() if ln.startswith("| hot_pixels |"))
     assert f"| {hot['statistic']} {sig['heldout_before']:.3f} -> {sig['heldout_after']:.3f} (z " in row
+    # every effect lists its look-alikes (only a named one can have any), and report.md says them
+    assert all(isinstance(e["look_alikes"], list) for e in r["effects"])
+    assert all(not e["look_alikes"] for e in r["effects"] if not e["missing"])
+    assert "## Look-alikes" in md
+    for a in hot["look_alikes"]:
+        assert f"**hot_pixels** is not told apart from **{a['name']}**" in md
     # the frame interpolation is a nuisance choice: the recording's events were simulated
     # from linearly blended frames, and that is the method the basic refit keeps
     fi = r["frame_interpolation"]

@@ -103,3 +103,24 @@ def test_next_round_drops_the_added_effect_even_when_a_vetoed_one_ranked_above_i
     left = next_round([EFFECTS[n] for n in names], cands, best)
     # the vetoed one and the other fitted helper stay; the added one and the unfitted one go
     assert [e.name for e in left] == ["bandwidth", "latency"]
+
+
+def test_look_alikes_are_the_candidates_the_held_out_data_do_not_separate():
+    from rdnet.calib.calibrate import separating_measurement
+    from rdnet.calib.fit import look_alikes
+    cfg = CalibrateConfig()
+    chosen = Candidate(EFFECTS["refractory_period"], {}, evaluation({"iei": [1.00, 1.10, 0.90]}), fitted=True)
+    close = Candidate(EFFECTS["readout_saturation"], {}, evaluation({"iei": [1.05, 1.15, 0.95]}), fitted=True)
+    far = Candidate(EFFECTS["latency"], {}, evaluation({"iei": [3.0, 3.1, 2.9]}), fitted=True)
+    unfitted = Candidate(EFFECTS["shot_noise"], {}, evaluation({"iei": [1.0, 1.1, 0.9]}), fitted=False)
+    vetoed = Candidate(EFFECTS["bandwidth"], {}, evaluation({"iei": [1.0, 1.1, 0.9]}), fitted=True)
+    vetoed.vetoed = True
+    out = look_alikes(chosen, [chosen, close, far, unfitted, vetoed], cfg)
+    assert [o.effect.name for o, _, _ in out] == ["readout_saturation"]
+    (_, margin, spread), = out
+    assert margin == pytest.approx(0.05) and spread == pytest.approx(0.1)
+    assert "inter-event-interval" in separating_measurement("readout_saturation", "refractory_period")
+    assert "LED" in separating_measurement("latency", "bandwidth")
+    assert "flicker" in separating_measurement("threshold_mismatch", "onoff_asymmetry")   # first match
+    assert "still scene" in separating_measurement("hot_pixels", "threshold_mismatch")
+    assert separating_measurement("latency", "hot_pixels").startswith("a recording that drives one")
