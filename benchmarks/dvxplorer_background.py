@@ -28,7 +28,6 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORDING = ROOT.parent / "shared" / "real" / "dvxplorer_person" / "dvxplorer.aedat4"
-MASK = {"sigma_px": 4.0, "rel_threshold": 0.25, "quantile": 0.999}   # as stages/restore_real.py
 BANDS_PX = ((0, 5), (5, 15), (15, 40), (40, None))
 
 
@@ -37,6 +36,7 @@ def main(argv=None) -> int:
 
     from rdnet.baselines.baf import baf_mask
     from rdnet.config import load_params, section
+    from rdnet.eval.noref import ACTIVITY_MASK as MASK
     from rdnet.eval.noref import activity_mask
     from rdnet.events.core import Events
     from rdnet.events.io.dispatch import load

@@ -16,12 +16,12 @@ to --data-out.
 from pathlib import Path
 
 import _common
+from rdnet.eval.noref import ACTIVITY_MASK as MASK  # after _common: it puts the repo on sys.path
 
 #: (x, y) hot pixels listed in ../shared/real/README.md, per recording folder name.
 HOT_PIXELS = {"dvxplorer_person": [(187, 105), (204, 157), (241, 196), (307, 97)]}
 #: (width, height) of recordings whose format does not store it (README: DAVIS240C).
 SENSOR_SIZE = {"ecd_shapes_subset": (240, 180)}
-MASK = {"sigma_px": 4.0, "rel_threshold": 0.25, "quantile": 0.999}
 SKIP = {".md", ".png", ".jpg", ".json", ".yaml", ".dvc"}
 METHODS = ("raw", "baf", "stcf", "gef", "rdnet", "ednccn")
 #: Extra rows on the recordings with known hot pixels (HOT_PIXELS): (key, method, restore

@@ -181,8 +181,7 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
 
     rank = {c.effect.name: i + 1 for i, c in enumerate(fit.first_round)}
     selected = {c.effect.name for c in fit.selected}
-    alike = {c.effect.name: look_alikes(c, fit.rounds[c.round - 1], cfg) for c in fit.selected
-             if 0 < c.round <= len(fit.rounds)}
+    alike = {c.effect.name: look_alikes(c, fit.rounds[c.round - 1], cfg) for c in fit.selected}
     effects = []
     for eff in absent_effects(degrade):
         c = fit.candidates.get(eff.name)

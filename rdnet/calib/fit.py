@@ -690,10 +690,14 @@ class FitResult:
     final_values: dict
     selected: list           # Candidate, in the order added
     candidates: dict         # effect name -> last Candidate (every absent effect)
-    first_round: list        # Candidates of round 1 sorted by gain (the ranking)
+    rounds: list             # every round's Candidates (fitted first, by gain)
     n_sims: int
     search: dict = field(default_factory=dict)   # search-level bookkeeping for the report
-    rounds: list = field(default_factory=list)   # every round's Candidates (fitted first, by gain)
+
+    @property
+    def first_round(self) -> list:
+        """Round 1's candidates, fitted first and by gain: the ranking."""
+        return self.rounds[0] if self.rounds else []
 
 
 def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objective | None = None,
@@ -728,7 +732,6 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
     remaining = [e for e in absent_effects(search.degrade) if not cfg.candidates or e.name in cfg.candidates]
     selected: list[Candidate] = []
     candidates: dict[str, Candidate] = {}
-    first_round: list[Candidate] = []
     rounds: list[list[Candidate]] = []
     rnd = 0
     while remaining and len(selected) < cfg.max_effects:
@@ -779,8 +782,6 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
         # fitted candidates first (scored at the final level), then the screened-out ones
         round_c.sort(key=lambda c: (not c.fitted, -c.gain))
         rounds.append(list(round_c))
-        if rnd == 1:
-            first_round = list(round_c)
         # a vetoed candidate (its gain without its signature) is skipped, not a stop
         best = next((c for c in round_c if not c.vetoed), round_c[0])
         if not best.significant:
@@ -813,8 +814,7 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
             "kernel_runs": search.engine.n_kernel + (final.engine.n_kernel if final.engine is not search.engine else 0),
             "count_slope": beta, "rounds": rnd}
     return FitResult(base=base, basic=basic, final=cur_eval, basic_values=values, final_values=current,
-                     selected=selected, candidates=candidates, first_round=first_round, n_sims=n, search=info,
-                     rounds=rounds)
+                     selected=selected, candidates=candidates, rounds=rounds, n_sims=n, search=info)
 
 
 def look_alikes(chosen: Candidate, round_c: list, cfg) -> list[tuple[Candidate, float, float]]:
@@ -824,7 +824,7 @@ def look_alikes(chosen: Candidate, round_c: list, cfg) -> list[tuple[Candidate, 
     ``(candidate, margin, spread)``: how much better ``chosen`` fits, and the seed spread."""
     out = []
     for o in round_c:
-        if o is chosen or not o.fitted or o.vetoed or o.effect.name == chosen.effect.name:
+        if o is chosen or not o.fitted or o.vetoed:
             continue
         margin, spread = _drop(o.evaluation.held, chosen.evaluation.held)
         if margin < cfg.significance * spread:

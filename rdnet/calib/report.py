@@ -73,16 +73,12 @@ def markdown(cal: Calibration, figures: list[str]) -> str:
         lines.append(f"- **{e['name']}**: {e['evidence']}")
     alike = [(e, a) for e in r["effects"] if e["missing"] for a in e.get("look_alikes") or []]
     lines += ["", "## Look-alikes", ""]
-    if not alike:
-        lines += ["Every named effect fits the held-out segments better than each other fitted candidate of "
-                  "its round by more than `calibrate.significance` seed spreads.", ""]
-    for e, a in alike:
-        lines.append(f"- **{e['name']}** is not told apart from **{a['name']}** by these data: held-out "
-                     f"discrepancy {a['heldout_after']:.3f} with {a['name']}, {a['margin']:.3f} lower with "
-                     f"{e['name']} ({a['margin'] / max(a['margin_seed_std'], 1e-12):.1f} seed std). What would "
-                     f"separate them: {a['separate_with']}.")
-    if alike:
-        lines.append("")
+    lines += [f"- **{e['name']}** is not told apart from **{a['name']}** by these data: held-out "
+              f"discrepancy {a['heldout_after']:.3f} with {a['name']}, {a['margin']:.3f} lower with "
+              f"{e['name']} ({a['margin'] / max(a['margin_seed_std'], 1e-12):.1f} seed std). What would "
+              f"separate them: {a['separate_with']}." for e, a in alike] or [
+        "Every named effect fits the held-out segments better than each other fitted candidate of "
+        "its round by more than `calibrate.significance` seed spreads."]
     lines += ["", "## Basic refit (configured parameters)", "",
               ", ".join(f"{k} = {v:.4g}" for k, v in r["basic_refit"].items()) or "(nothing)", ""]
     fi = r.get("frame_interpolation")

@@ -213,8 +213,13 @@ def mask_fractions(raw: Events, kept: Events, masks: Mapping[str, np.ndarray]) -
     return out
 
 
-def activity_mask(events: Events, sigma_px: float = 4.0, rel_threshold: float = 0.25,
-                  quantile: float = 0.999) -> np.ndarray:
+#: the activity-mask settings ``restore_real`` scores with (and benchmarks that read its regions)
+ACTIVITY_MASK = {"sigma_px": 4.0, "rel_threshold": 0.25, "quantile": 0.999}
+
+
+def activity_mask(events: Events, sigma_px: float = ACTIVITY_MASK["sigma_px"],
+                  rel_threshold: float = ACTIVITY_MASK["rel_threshold"],
+                  quantile: float = ACTIVITY_MASK["quantile"]) -> np.ndarray:
     """(H, W) bool mask of where the scene moves, from the events themselves: the event
     count per pixel, 3 x 3 median-filtered (a lone hot pixel disappears: its neighbours
     are quiet), Gaussian-smoothed with ``sigma_px`` (an extended moving object stays
