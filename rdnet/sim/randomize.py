@@ -7,6 +7,8 @@ degradation strengths from *disjoint* ranges around the ``degrade`` section:
     value = base * m            (onoff_ratio: base ** m, i.e. scaled in log space)
     m ~ U(train_scale)  for split "train",  m ~ U(test_scale)  for split "test"
 
+(a scale may be a union of ranges, drawn uniformly over the union: :func:`draw_scale`)
+
 independently per key and per sequence. Only effects active in ``base`` are randomized
 (an effect that is off stays off), so ``dvc exp run -S degrade.threshold_sigma=0.05``
 changes both splits around the new value. ``hot_pixel_fraction`` and ``threshold_sigma``
@@ -22,7 +24,7 @@ import numpy as np
 from rdnet.errors import ConfigError
 from rdnet.sim.settings import EFFECT_KEYS, DegradeConfig, RandomizeConfig
 
-__all__ = ["RandomizeConfig", "draw_degrade", "scale_degrade", "degradation_level", "degrade_factors"]
+__all__ = ["RandomizeConfig", "draw_degrade", "draw_scale", "scale_degrade", "degradation_level", "degrade_factors"]
 
 _CAPPED = {"hot_pixel_fraction": 1.0, "threshold_sigma": 1.0}
 
@@ -39,6 +41,24 @@ def scale_degrade(base: DegradeConfig, factors: dict[str, float]) -> DegradeConf
     return dataclasses.replace(base, **new)
 
 
+def draw_scale(ranges, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` factors drawn uniformly over the union of ``ranges`` ((lo, hi) pairs; a
+    range is picked with probability proportional to its length). One range is one
+    ``rng.uniform(lo, hi, n)`` call (the draws of a single-range config do not change)."""
+    ranges = [(float(a), float(b)) for a, b in ranges]
+    if len(ranges) == 1:
+        lo, hi = ranges[0]
+        return rng.uniform(lo, hi, size=n)
+    lengths = np.array([b - a for a, b in ranges])
+    if lengths.sum() <= 0:                       # only points: pick one per draw
+        return np.array([a for a, _ in ranges])[rng.integers(0, len(ranges), size=n)]
+    u = rng.uniform(0.0, lengths.sum(), size=n)  # a position along the ranges laid end to end
+    edges = np.cumsum(lengths)
+    k = np.minimum(np.searchsorted(edges, u, side="right"), len(ranges) - 1)
+    lo = np.array([a for a, _ in ranges])
+    return lo[k] + (u - (edges[k] - lengths[k]))
+
+
 def draw_degrade(base: DegradeConfig, cfg: RandomizeConfig, split: str,
                  rng: np.random.Generator) -> DegradeConfig:
     """Degradation of one sequence of ``split`` ("train" or "test").
@@ -50,8 +70,7 @@ def draw_degrade(base: DegradeConfig, cfg: RandomizeConfig, split: str,
         raise ConfigError("split", f"must be 'train' or 'test', got {split!r}")
     if not cfg.enabled:
         return base
-    lo, hi = cfg.train_scale if split == "train" else cfg.test_scale
-    draws = rng.uniform(lo, hi, size=len(EFFECT_KEYS))
+    draws = draw_scale(cfg.train_ranges if split == "train" else cfg.test_ranges, len(EFFECT_KEYS), rng)
     keys = set(cfg.keys) if cfg.keys else set(EFFECT_KEYS)
     active = set(base.active())
     factors = {k: float(m) for k, m in zip(EFFECT_KEYS, draws) if k in keys and k in active}

@@ -6,7 +6,7 @@ Zero (or ``onoff_ratio = 1``) turns a degradation off; the equations live in
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import Tuple
+from typing import Any, Tuple
 
 from rdnet.config import positive
 from rdnet.errors import ConfigError
@@ -108,6 +108,17 @@ class DegradeConfig:
         return not self.active()
 
 
+Range = Tuple[float, float]
+
+
+def scale_ranges(value) -> tuple[Range, ...]:
+    """The ranges of a ``randomize.*_scale`` value: ``[lo, hi]`` is one range,
+    ``[[lo, hi], [lo, hi], ...]`` several (their union)."""
+    if value and isinstance(value[0], (tuple, list)):
+        return tuple((float(a), float(b)) for a, b in value)
+    return ((float(value[0]), float(value[1])),)
+
+
 @dataclass(frozen=True)
 class RandomizeConfig:
     """``randomize`` section: per-sequence degradation drawn around ``degrade``.
@@ -115,36 +126,61 @@ class RandomizeConfig:
     Each randomized key of the ``degrade`` section that is active is multiplied by a
     factor drawn uniformly from ``train_scale`` (training sequences) or ``test_scale``
     (test sequences), independently per key and per sequence; ``onoff_ratio`` is scaled
-    in log space (r -> r ** factor). The two ranges must be disjoint, so test
-    degradations are never seen in training. ``keys``: the keys to randomize (empty =
-    all active effects of :data:`EFFECT_KEYS`). ``enabled: false`` uses ``degrade``
-    unchanged for both splits (ranges then unchecked).
+    in log space (r -> r ** factor). A scale is one range ``[lo, hi]`` or a union of
+    ranges ``[[lo, hi], ...]`` (drawn uniformly over the union: a range is picked with
+    probability proportional to its length). Every training range must be disjoint from
+    every test range, so test degradations are never seen in training; a union lets the
+    training draws bracket the test range (``[[0.5, 0.9], [1.6, 2.0]]`` around a test
+    range ``[1.0, 1.5]``) instead of lying all on one side of it. ``keys``: the keys to
+    randomize (empty = all active effects of :data:`EFFECT_KEYS`). ``enabled: false``
+    uses ``degrade`` unchanged for both splits (ranges then unchecked).
     """
 
     enabled: bool = True
-    train_scale: Tuple[float, float] = (0.5, 0.9)
-    test_scale: Tuple[float, float] = (1.0, 1.5)
+    train_scale: Any = (0.5, 0.9)      # Range or tuple of Ranges (validated below)
+    test_scale: Any = (1.0, 1.5)
     keys: Tuple[str, ...] = ()
 
     def __post_init__(self):
-        object.__setattr__(self, "train_scale", tuple(float(v) for v in self.train_scale))
-        object.__setattr__(self, "test_scale", tuple(float(v) for v in self.test_scale))
-        object.__setattr__(self, "keys", tuple(self.keys))
         for name in ("train_scale", "test_scale"):
-            rng = getattr(self, name)
             key = f"randomize.{name}"
-            if len(rng) != 2:
-                raise ConfigError(key, f"expected [lo, hi], got {list(rng)}")
-            lo, hi = rng
-            positive(key, lo, allow_zero=True)
-            if not lo <= hi or hi == float("inf"):
-                raise ConfigError(key, f"expected finite lo <= hi, got {list(rng)}")
+            value = getattr(self, name)
+            shape = f"expected [lo, hi] or [[lo, hi], ...], got {value!r}"
+            if not isinstance(value, (tuple, list)) or not value:
+                raise ConfigError(key, shape)
+            nested = isinstance(value[0], (tuple, list))
+            for rng in (value if nested else (value,)):
+                if not isinstance(rng, (tuple, list)) or len(rng) != 2 or not all(
+                        isinstance(v, (int, float)) and not isinstance(v, bool) for v in rng):
+                    raise ConfigError(key, shape)
+                lo, hi = rng
+                positive(key, lo, allow_zero=True)
+                if not lo <= hi or hi == float("inf"):
+                    raise ConfigError(key, f"expected finite lo <= hi, got {list(rng)}")
+            ranges = scale_ranges(value)
+            object.__setattr__(self, name, ranges if nested else ranges[0])
+        object.__setattr__(self, "keys", tuple(self.keys))
         for k in self.keys:
             if k not in EFFECT_KEYS:
                 raise ConfigError("randomize.keys", f"unknown degrade key {k!r}; known: {', '.join(EFFECT_KEYS)}")
         if self.enabled:
-            (a0, a1), (b0, b1) = self.train_scale, self.test_scale
-            if not (a1 < b0 or b1 < a0):
-                raise ConfigError("randomize.test_scale",
-                                  f"train_scale {list(self.train_scale)} and test_scale "
-                                  f"{list(self.test_scale)} must be disjoint")
+            for a0, a1 in self.train_ranges:
+                for b0, b1 in self.test_ranges:
+                    if not (a1 < b0 or b1 < a0):
+                        raise ConfigError("randomize.test_scale",
+                                          f"train_scale {_show(self.train_scale)} and test_scale "
+                                          f"{_show(self.test_scale)} must be disjoint")
+
+    @property
+    def train_ranges(self) -> tuple[Range, ...]:
+        """``train_scale`` as a tuple of (lo, hi) ranges."""
+        return scale_ranges(self.train_scale)
+
+    @property
+    def test_ranges(self) -> tuple[Range, ...]:
+        """``test_scale`` as a tuple of (lo, hi) ranges."""
+        return scale_ranges(self.test_scale)
+
+
+def _show(value) -> list:
+    return [list(r) for r in value] if value and isinstance(value[0], tuple) else list(value)

@@ -16,6 +16,7 @@ import logging
 from pathlib import Path
 
 from rdnet.config import section
+from rdnet.sim.settings import scale_ranges
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +71,8 @@ def plot_stress(path: Path, result: dict) -> Path:
                     marker="o", capsize=3, label=rid)
     tr = result.get("train_scale")
     if tr:
-        ax.axvspan(tr[0], tr[1], color="0.9", zorder=0, label="training range")
+        for i, (lo, hi) in enumerate(scale_ranges(tr)):
+            ax.axvspan(lo, hi, color="0.9", zorder=0, label="training range" if i == 0 else None)
     ax.set_xlabel("degradation strength (x degrade, every effect)")
     ax.set_ylabel("PSNR (dB)")
     ax.grid(alpha=0.3)

@@ -231,6 +231,19 @@ def test_randomize_validation():
     RandomizeConfig(enabled=False, train_scale=(1, 1), test_scale=(1, 1))
 
 
+def test_randomize_union_of_ranges():
+    c = from_dict(RandomizeConfig, {"train_scale": [[0.5, 0.9], [1.6, 2.0]], "test_scale": [1.0, 1.5]}, "randomize")
+    assert c.train_ranges == ((0.5, 0.9), (1.6, 2.0)) and c.test_ranges == ((1.0, 1.5),)
+    assert c.test_scale == (1.0, 1.5)                     # one range stays a pair
+    with pytest.raises(ConfigError, match="randomize.test_scale.*disjoint"):   # every pair of ranges
+        from_dict(RandomizeConfig, {"train_scale": [[0.5, 0.9], [1.4, 2.0]]}, "randomize")
+    for bad in ([[0.5], [1.6, 2.0]], [[0.5, 0.9], 1.6], [], 3, ["a", 1]):
+        with pytest.raises(ConfigError, match=r"randomize.train_scale.*\[lo, hi\]"):
+            from_dict(RandomizeConfig, {"train_scale": bad}, "randomize")
+    with pytest.raises(ConfigError, match="randomize.train_scale.*lo <= hi"):
+        from_dict(RandomizeConfig, {"train_scale": [[0.5, 0.9], [2.0, 1.6]]}, "randomize")
+
+
 def test_rng_required_for_random_effects():
     from rdnet.errors import ValidationError
     with pytest.raises(ValidationError, match="rng"):

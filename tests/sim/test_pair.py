@@ -7,7 +7,7 @@ import pytest
 from rdnet.errors import ConfigError, ValidationError
 from rdnet.events.recording import Frames
 from rdnet.sim.pair import frame_chunks, simulate, simulate_pair
-from rdnet.sim.randomize import degradation_level, degrade_factors, draw_degrade
+from rdnet.sim.randomize import degradation_level, degrade_factors, draw_degrade, draw_scale
 from rdnet.sim.settings import EFFECT_KEYS, DegradeConfig, RandomizeConfig, SensorConfig
 
 DEG = DegradeConfig(threshold_sigma=0.1, onoff_ratio=1.3, cutoff_hz=300, sample_period_us=200,
@@ -122,6 +122,26 @@ def test_randomize_details():
                           RandomizeConfig(), "test", np.random.default_rng(1))
     assert capped.hot_pixel_fraction <= 1.0
     assert set(EFFECT_KEYS) >= set(DEG.active())
+
+
+def test_draw_scale_union():
+    # one range: the very bits of rng.uniform (configs with one range draw as before)
+    assert np.array_equal(draw_scale([(0.5, 0.9)], 7, np.random.default_rng(3)),
+                          np.random.default_rng(3).uniform(0.5, 0.9, size=7))
+    d = draw_scale([(0.5, 0.9), (1.6, 2.4)], 20000, np.random.default_rng(0))
+    assert ((d >= 0.5) & (d <= 0.9) | (d >= 1.6) & (d <= 2.4)).all()
+    assert (d < 1.0).mean() == pytest.approx(0.4 / 1.2, abs=0.01)   # a range's share = its length's
+    assert d[d > 1.0].min() < 1.62 and d[d > 1.0].max() > 2.38 and d[d < 1.0].max() > 0.88
+    assert np.array_equal(draw_scale([(0.5, 0.9), (1.6, 2.4)], 5, np.random.default_rng(1)),
+                          draw_scale([(0.5, 0.9), (1.6, 2.4)], 5, np.random.default_rng(1)))
+    assert set(draw_scale([(1.0, 1.0), (2.0, 2.0)], 50, np.random.default_rng(0))) == {1.0, 2.0}
+    # a degradation drawn from a union: every factor in one of the ranges, both sides used
+    cfg = RandomizeConfig(train_scale=((0.5, 0.9), (1.6, 2.0)), test_scale=(1.0, 1.5))
+    f = [m for s in range(30) for m in degrade_factors(draw_degrade(DEG, cfg, "train", np.random.default_rng(s)),
+                                                        DEG).values()]
+    f = np.array(f)
+    assert (((f >= 0.5 - 1e-9) & (f <= 0.9 + 1e-9)) | ((f >= 1.6 - 1e-9) & (f <= 2.0 + 1e-9))).all()
+    assert (f < 1).any() and (f > 1).any()
 
 
 # --- prefetch: the producer thread of the CLI ---------------------------------------------------
