@@ -15,14 +15,30 @@ before each run (the 2 cores are shared with other jobs: wall times include wait
 ``--big-gb 2`` adds one baf run (scores off) on a multi-GB EVT 3.0 file (night.raw's data
 repeated, built in a temporary folder by bench_formats.py's helper) to show that memory
 does not grow with the file; without it, the out file's earlier ``large_file`` entry is kept
-with ``"from_an_earlier_run": true``.
+with ``"from_an_earlier_run": true`` (so is a recording left out with ``--recordings``).
+
+``--steady K`` (steady-state throughput, issue 11) also restores, with each method, the
+DAVIS346 recording's events and frames written to a temporary HDF5 in the project's layout
+(:class:`rdnet.events.io.hdf5.H5RecordingWriter`) once and repeated ``K`` times back to back
+(copy ``c`` shifted by ``c`` x the recording span, events and frames), each through the CLI
+in a child process like the rows above. From the 1x and Kx walls: the cost per second of
+recording (their difference over ``K - 1`` spans), the steady-state realtime factor (its
+inverse) and the fixed start-up cost (imports, model loading, ...: the 1x wall minus one
+span's cost); with the restore loop's own realtime factor (OUT.json) and peak RSS. The
+load average is recorded before and after every run. Written to ``steady_state`` of the
+out file (the earlier one kept, marked, when ``--steady`` is not given). ``--settle S``
+waits up to S seconds before each run for the 1-minute load average to fall below 1 (a
+run's own load takes a minute to decay), recorded as ``settle_wait_s``.
 
     .venv/bin/python benchmarks/bench_restore.py        # writes benchmarks/results/restore.json
+    .venv/bin/python benchmarks/bench_restore.py --methods rdnet --recordings davis346_road --steady 10 \
+        --settle 120 --out benchmarks/results/restore_learned_speed.json      # the learned restorer
 """
 from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import platform
 import subprocess
@@ -32,11 +48,27 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+log = logging.getLogger("bench_restore")
 RECORDINGS = {"davis346_road": ROOT / "data" / "real" / "davis346_road" / "davis346.aedat4",
               "prophesee_evk4_night": ROOT.parent / "shared" / "real" / "prophesee_evk4_night" / "night.raw"}
 
 
+#: ``--settle``: before each run, wait up to this many seconds for the 1-minute load average
+#: to fall below SETTLE_LOAD (the previous run's own load decays; 0: do not wait).
+SETTLE = {"seconds": 0.0}
+SETTLE_LOAD = 1.0
+
+
+def settle() -> float:
+    """Wait (module constants above); returns the seconds waited."""
+    t = time.perf_counter()
+    while os.getloadavg()[0] >= SETTLE_LOAD and time.perf_counter() - t < SETTLE["seconds"]:
+        time.sleep(5.0)
+    return time.perf_counter() - t
+
+
 def run_one(path: Path, method: str, work: Path, scores: bool = True) -> dict:
+    waited = settle() if SETTLE["seconds"] > 0 else 0.0
     out = work / f"{path.stem}_{method}.h5"
     cmd = [sys.executable, "-m", "rdnet.cli", "restore", str(path), str(out), "--method", method, "--no-progress",
            "--set", f"restore.scores={'true' if scores else 'false'}"]
@@ -62,7 +94,72 @@ def run_one(path: Path, method: str, work: Path, scores: bool = True) -> dict:
             "restore_loop_s": info["seconds"], "restore_loop_cpu_s": info["cpu_seconds"],
             "restore_loop_events_per_s": info["events_per_s"],
             "restore_loop_realtime_factor_cpu": dur_s / info["cpu_seconds"] if info["cpu_seconds"] > 0 else None,
-            "faster_than_realtime": dur_s / wall > 1.0, "load_average_1min_before": load}
+            "faster_than_realtime": dur_s / wall > 1.0, "load_average_1min_before": load,
+            **({"settle_wait_s": waited} if SETTLE["seconds"] > 0 else {})}
+
+
+def repeated_h5(path: Path, copies: int, out: Path) -> dict:
+    """Write ``path``'s events and frames ``copies`` times back to back to the HDF5 ``out``
+    (copy ``c`` shifted by ``c`` x the span: first to last event or frame exposure, + 1 us).
+    Returns what was written."""
+    import numpy as np
+
+    from rdnet.events.core import Events, concatenate
+    from rdnet.events.io.hdf5 import H5RecordingWriter
+    from rdnet.events.io.stream import open_events
+
+    with open_events(path) as src:
+        ev = concatenate(list(src.chunks(10**7)))
+        frames = src.frames()
+        width, height, sensor = src.width, src.height, getattr(src, "sensor", "") or ""
+    t_lo, t_hi = int(ev.t[0]), int(ev.t[-1])
+    if frames is not None and len(frames):
+        t_lo = min(t_lo, int((frames.t_us - frames.exposure_us // 2).min()))
+        t_hi = max(t_hi, int((frames.t_us - frames.exposure_us // 2 + frames.exposure_us).max()))
+    span = t_hi - t_lo + 1
+    with H5RecordingWriter(out, width, height, sensor) as w:
+        for c in range(copies):
+            arr = ev.array.copy()
+            arr["t"] += c * span
+            w.append_events(Events(arr, width, height, validate=False))
+        if frames is not None and len(frames):
+            shifts = np.repeat(np.arange(copies, dtype=np.int64) * span, len(frames))
+            w.append_frames(np.concatenate([frames.images] * copies), np.tile(frames.t_us, copies) + shifts,
+                            np.tile(frames.exposure_us, copies))
+    return {"copies": copies, "span_us": span, "events": copies * len(ev),
+            "frames": 0 if frames is None else copies * len(frames), "bytes": out.stat().st_size}
+
+
+def steady_state(path: Path, methods: list[str], copies: int, work: Path) -> dict:
+    """The 1x / ``copies``x runs of each method on ``path`` written as HDF5 (module docstring)."""
+    files = {k: repeated_h5(path, k, work / f"{path.stem}_x{k}.h5") for k in (1, copies)}
+    out = {"source": str(path.relative_to(ROOT.parent) if ROOT.parent in path.parents else path),
+           "copies": copies, "span_s": files[1]["span_us"] * 1e-6,
+           "inputs": {f"x{k}": v for k, v in files.items()}, "methods": {}}
+    for m in methods:
+        for scores in (True, False):
+            rows = {}
+            for k in (1, copies):
+                r = run_one(work / f"{path.stem}_x{k}.h5", m, work, scores)
+                r["load_average_1min_after"] = os.getloadavg()[0]
+                log.info("steady x%d %s", k, json.dumps(r))
+                rows[f"x{k}"] = r
+            one, many = rows["x1"], rows[f"x{copies}"]
+            entry = {"runs": rows}
+            if "error" not in one and "error" not in many:
+                per_span = (many["wall_s"] - one["wall_s"]) / (copies - 1)          # wall per recording span
+                dur = (many["duration_s"] - one["duration_s"]) / (copies - 1)
+                entry.update({
+                    "wall_per_recording_s": per_span / dur,
+                    "steady_realtime_factor": dur / per_span,
+                    "fixed_startup_s": one["wall_s"] - per_span,
+                    "end_to_end_realtime_factor_x1": one["realtime_factor"],
+                    f"end_to_end_realtime_factor_x{copies}": many["realtime_factor"],
+                    f"restore_loop_realtime_factor_x{copies}": many["duration_s"] / many["restore_loop_s"],
+                    "faster_than_realtime_steady": dur / per_span > 1.0,
+                    f"peak_rss_mb_x{copies}": many["peak_rss_mb"]})
+            out["methods"][f"{m}{'' if scores else '_noscores'}"] = entry
+    return out
 
 
 def main() -> None:
@@ -73,7 +170,16 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "restore.json")
     ap.add_argument("--big-gb", type=float, default=0.0,
                     help="also restore (baf) a file of about this many GiB: night.raw's data repeated (0: skip)")
+    ap.add_argument("--steady", type=int, default=0, metavar="K",
+                    help="also measure steady-state throughput on DAVIS346 repeated K times (K >= 2; 0: skip)")
+    ap.add_argument("--settle", type=float, default=0.0, metavar="S",
+                    help=f"before each run wait up to S seconds for the 1-minute load to fall below {SETTLE_LOAD}")
     args = ap.parse_args()
+    SETTLE["seconds"] = args.settle
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    if args.steady == 1 or args.steady < 0:
+        ap.error("--steady needs K >= 2 copies (or 0)")
+    earlier = json.loads(args.out.read_text()) if args.out.is_file() else {}
     results = {"benchmark": "restore", "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                                                    "platform": platform.platform()},
                "goal": "realtime_factor > 1 on davis346_road", "load_average_1min_before": os.getloadavg()[0],
@@ -82,6 +188,9 @@ def main() -> None:
         work = Path(tmp)
         for name, path in RECORDINGS.items():
             if name not in args.recordings:
+                kept = earlier.get("recordings", {}).get(name)
+                if kept:                        # keep the last result, marked as such
+                    results["recordings"][name] = {**kept, "from_an_earlier_run": True}
                 continue
             if not path.is_file():
                 results["recordings"][name] = {"skipped": f"{path} not present"}
@@ -90,7 +199,7 @@ def main() -> None:
             for m in args.methods:
                 for scores in (True, False):
                     r = run_one(path, m, work, scores)
-                    print(name, json.dumps(r), flush=True)
+                    log.info("%s %s", name, json.dumps(r))
                     rows.append(r)
                     if "error" in r:
                         break
@@ -102,13 +211,15 @@ def main() -> None:
             from bench_formats import _big_file          # benchmarks/ is on sys.path (run as a script)
             big, copies = _big_file(work, args.big_gb)
             r = run_one(big, "baf", work, scores=False)    # the read/restore/write path alone
-            print("big", json.dumps(r), flush=True)
+            log.info("big %s", json.dumps(r))
             results["large_file"] = {"file": f"night.raw's data x {copies} (EVT 3.0)", "bytes": big.stat().st_size,
                                      "run": r}
-        elif args.out.is_file():                  # keep the last --big-gb result, marked as such
-            earlier = json.loads(args.out.read_text()).get("large_file")
-            if earlier:
-                results["large_file"] = {**earlier, "from_an_earlier_run": True}
+        elif earlier.get("large_file"):           # keep the last --big-gb result, marked as such
+            results["large_file"] = {**earlier["large_file"], "from_an_earlier_run": True}
+        if args.steady:
+            results["steady_state"] = steady_state(RECORDINGS["davis346_road"], args.methods, args.steady, work)
+        elif earlier.get("steady_state"):
+            results["steady_state"] = {**earlier["steady_state"], "from_an_earlier_run": True}
     results["load_average_1min_after"] = os.getloadavg()[0]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     from rdnet.eval.report import write_text_atomic

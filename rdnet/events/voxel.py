@@ -15,7 +15,9 @@ networks consume); ``"maxabs"`` divides by the largest absolute value;
 ``"std"`` divides the non-zero entries by their standard deviation (EFNet style).
 
 :func:`voxel_events` goes the other way: a (restored, real-valued) voxel grid rounded to
-whole events, e.g. to write the output of the restoration network as an event stream.
+whole events, e.g. to write the output of the restoration network as an event stream;
+:func:`entry_events` does the same from the grid's non-zero entries alone (positions and
+counts), for callers that know them without the dense grid.
 
 Per-polarity grids (``polarity="split"``): a (2, bins, height, width) grid of the ON
 (index 0) and OFF (index 1) event *counts* per bin, each non-negative (a signed grid is
@@ -116,22 +118,66 @@ def voxel_events(grid: np.ndarray, t0_us: int, duration_us: int, *, mode: str = 
     ``mode="bilinear"`` puts them at the bin's time
     position t0 + k T / (bins - 1) (rounded up). Returns time-sorted events (stable in bin, row,
     column order for equal times) on a ``width`` x ``height`` sensor.
+
+    Only the non-zero entries are converted (:func:`entry_events` does the rest): an
+    integer grid with ``scale == 1`` is read as it is, a float grid with ``scale == 1`` is
+    rounded in its own precision (the same integers as rounding in float64: a float32 value
+    is a float64 value, and rounding to an integer is exact), other scales in float64.
     """
     grid = np.asarray(grid)
     split = grid.ndim == 4
     if not (grid.ndim == 3 or (split and grid.shape[0] == 2)):
         raise ValidationError("voxel", "expected (bins, height, width) or (2, bins, height, width), "
                               f"got shape {grid.shape}")
+    flat = grid.reshape(-1)          # a view for the C-contiguous grids the callers pass
+    if np.issubdtype(grid.dtype, np.integer) or grid.dtype == np.bool_:
+        if float(scale) == 1.0:
+            nz = np.flatnonzero(flat)
+            counts = flat[nz].astype(np.int64)
+        else:
+            counts_all = np.rint(flat.astype(np.float64) * float(scale)).astype(np.int64)
+            nz = np.flatnonzero(counts_all)
+            counts = counts_all[nz]
+    elif float(scale) == 1.0:
+        rounded = np.rint(flat)
+        nz = np.flatnonzero(rounded)
+        counts = rounded[nz].astype(np.int64)
+    else:
+        counts_all = np.rint(flat.astype(np.float64) * float(scale)).astype(np.int64)
+        nz = np.flatnonzero(counts_all)
+        counts = counts_all[nz]
+    return entry_events(nz, counts, grid.shape, t0_us, duration_us, mode=mode)
+
+
+def entry_events(index: np.ndarray, counts: np.ndarray, shape: tuple, t0_us: int, duration_us: int, *,
+                 mode: str = "hard") -> Events:
+    """The events of a voxel grid of ``shape`` ((bins, H, W) signed or (2, bins, H, W) per
+    polarity, as in :func:`voxel_events`) given by its non-zero entries alone: ``index``,
+    their flat C-order positions, increasing, and ``counts``, their whole event counts
+    (signed for a signed grid, >= 0 for a per-polarity one: negative is a ValidationError).
+    Entries of count 0 give no event. ``voxel_events(grid, ...)`` is
+    ``entry_events(flatnonzero(c), c[flatnonzero(c)], grid.shape, ...)`` with ``c`` the
+    rounded grid; a caller that already knows the few non-zero voxels of a large grid
+    (:func:`rdnet.nn.decision.decided_entries`) skips the dense grid."""
+    shape = tuple(int(s) for s in shape)
+    split = len(shape) == 4
+    if not (len(shape) == 3 or (split and shape[0] == 2)):
+        raise ValidationError("voxel", "expected (bins, height, width) or (2, bins, height, width), "
+                              f"got shape {shape}")
     if duration_us <= 0:
         raise ValidationError("duration_us", f"must be > 0, got {duration_us}")
-    bins, H, W = grid.shape[-3:]
-    counts = np.rint(grid.astype(np.float64) * float(scale)).astype(np.int64).ravel()
+    bins, H, W = shape[-3:]
+    nz = np.asarray(index, np.int64).ravel()
+    v = np.asarray(counts, np.int64).ravel()
+    if nz.shape != v.shape:
+        raise ValidationError("voxel", f"{nz.size} entry positions and {v.size} counts differ")
+    if nz.size and (nz[0] < 0 or nz[-1] >= int(np.prod(shape)) or (nz.size > 1 and np.any(np.diff(nz) <= 0))):
+        raise ValidationError("voxel", "entry positions must be increasing flat indices inside the grid")
     if split:
-        if (counts < 0).any():
+        if (v < 0).any():
             raise ValidationError("voxel", "a per-polarity (2, bins, H, W) grid holds negative counts")
-        counts[counts.size // 2:] *= -1                      # plane 1: OFF events, as negative counts
-    nz = np.flatnonzero(counts)
-    n = np.abs(counts[nz])
+        v = np.where(nz >= bins * H * W, -v, v)               # plane 1: OFF events, as negative counts
+    n = np.abs(v)
     idx = np.repeat(nz, n)                                   # one entry per event
     first = np.repeat(np.cumsum(n) - n, n)
     j = np.arange(idx.size, dtype=np.int64) - first          # event number inside its entry
@@ -154,5 +200,5 @@ def voxel_events(grid: np.ndarray, t0_us: int, duration_us: int, *, mode: str = 
     arr["t"] = t[order]
     arr["x"] = (pix % W)[order]
     arr["y"] = (pix // W)[order]
-    arr["p"] = (counts[idx] > 0)[order]
+    arr["p"] = np.repeat(v > 0, n)[order]
     return Events(arr, W, H, validate=False)

@@ -19,11 +19,20 @@ Parameter count of one NAFBlock of width ``c`` with the default expansions (2, 2
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 
 class LayerNorm2d(nn.Module):
-    """LayerNorm over channels of (B, C, H, W), with per-channel affine weight and bias."""
+    """LayerNorm over channels of (B, C, H, W), with per-channel affine weight and bias.
+
+    A channels_last input (the memory format of inference on CPU,
+    :func:`rdnet.restore.learned.prepare_for_inference`) outside autograd is normalised by
+    torch's fused ``layer_norm`` over the last axis of its (B, H, W, C) view, one pass
+    instead of eight elementwise ones (about 2 ms of 30 per DAVIS346 window); the result
+    equals the formula below up to float rounding. Contiguous inputs and every pass that
+    records gradients -- all of training -- take the formula as written.
+    """
 
     def __init__(self, channels: int, eps: float = 1e-6):
         super().__init__()
@@ -32,6 +41,10 @@ class LayerNorm2d(nn.Module):
         self.eps = eps
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if (x.dim() == 4 and not torch.is_grad_enabled() and not x.is_contiguous()
+                and x.is_contiguous(memory_format=torch.channels_last)):
+            y = F.layer_norm(x.permute(0, 2, 3, 1), (x.shape[1],), self.weight, self.bias, self.eps)
+            return y.permute(0, 3, 1, 2)           # a channels_last (B, C, H, W) tensor again
         mu = x.mean(1, keepdim=True)
         var = (x - mu).pow(2).mean(1, keepdim=True)
         y = (x - mu) * torch.rsqrt(var + self.eps)

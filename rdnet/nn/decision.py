@@ -14,9 +14,19 @@ dict :func:`decision_dict`) so that inference applies the same rule.
 
 The signed output of the paper has no fitted decision: ``round(v)`` events of sign
 ``sign(v)`` per voxel (:func:`rdnet.events.voxel.voxel_events`), ``{"rule": "round"}``.
+
+The rule is stated on probabilities (the stored threshold, :func:`decide_counts`), where a
+float32 probability is compared with the threshold rounded to float32. Inference
+(:func:`decided_events`, :func:`decided_entries`) applies it to the logits instead,
+``logit >= logit_threshold(threshold)``, which skips the sigmoid and, since only the few
+kept voxels are read afterwards, every dense pass but one comparison:
+:func:`logit_threshold` is the smallest float32 logit whose ``torch.sigmoid`` reaches the
+threshold, searched with torch's own sigmoid, so both forms keep the same voxels
+(``tests/nn/test_decision_logits.py`` checks every float32 near the boundary).
 """
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Mapping
 
 import numpy as np
@@ -106,15 +116,107 @@ def events_from_signed(restored) -> np.ndarray:
     return polarity_grid(split_signed(np.rint(restored.float().cpu().numpy())).astype(np.int64))
 
 
+@lru_cache(maxsize=64)
+def logit_threshold(threshold: float) -> float:
+    """The occupancy threshold on the logit: for a float32 logit ``x``,
+    ``x >= logit_threshold(t)`` keeps the voxels that ``torch.sigmoid(x) >= t`` keeps with
+    ``t`` rounded to float32 (how :func:`decide_counts` compares a float32 probability).
+
+    The smallest float32 ``x`` with ``torch.sigmoid(x) >= float32(t)``, found by searching
+    the float32 values in order with torch's sigmoid itself (1,025 candidates a round,
+    from -inf to +inf), so the rounding of the sigmoid is reproduced, not approximated by
+    ``log(t / (1 - t))`` (for ``t = 0.5`` that is 0, while ``sigmoid(-1.7e-7)`` already
+    rounds to 0.5). Exact as long as torch's vectorised float32 sigmoid does not decrease
+    (the tests check every float32 within 4,096 steps of the answer); the last few
+    elements of a tensor, which torch computes in a scalar loop, can round an ulp
+    differently. ``-inf`` when every logit passes (``t <= 0``), ``+inf`` when none can
+    (``t`` above 1 in float32: :func:`decided_entries` then keeps nothing, also for
+    infinite logits)."""
+    import torch
+    t32 = np.float32(threshold)
+    if t32 <= 0:
+        return float("-inf")
+    if t32 > 1:
+        return float("inf")
+
+    def passes(keys: np.ndarray) -> np.ndarray:
+        # padded to whole SIMD vectors: torch's scalar tail loop can round its last ulp
+        # differently from the vectorised body, which is what a large tensor goes through
+        x = _ordered_to_float(np.r_[keys, np.full(-keys.size % 64, keys[-1])])
+        return (torch.sigmoid(torch.from_numpy(x)) >= float(t32)).numpy()[:keys.size]
+
+    # float32 values as ordered integers: lo fails, hi passes (sigmoid(+inf) = 1 >= t)
+    lo, hi = int(_float_to_ordered(np.float32(-np.inf))), int(_float_to_ordered(np.float32(np.inf)))
+    while hi - lo > 1:
+        cand = np.unique(np.linspace(lo, hi, 1025).round().astype(np.int64))
+        ok = passes(cand)
+        first = int(np.argmax(ok))                  # the last candidate (hi) passes
+        lo, hi = int(cand[first - 1]) if first > 0 else lo, int(cand[first])
+    return float(_ordered_to_float(np.array([hi]))[0])
+
+
+def _float_to_ordered(x: np.ndarray) -> np.ndarray:
+    """float32 -> int64 keys in the order of the values (-0.0 just below +0.0)."""
+    b = np.asarray(x, np.float32).view(np.int32).astype(np.int64)
+    return np.where(b < 0, -(b & 0x7FFFFFFF) - 1, b)
+
+
+def _ordered_to_float(k: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`_float_to_ordered`."""
+    k = np.asarray(k, np.int64)
+    b = np.where(k < 0, (-(k + 1)) | -0x80000000, k)
+    return b.astype(np.int32).view(np.float32)
+
+
+def decided_entries(mu, logit, decision: Mapping | None) -> tuple[np.ndarray, np.ndarray]:
+    """The voxels the fitted occupancy threshold of ``decision`` keeps, from the heads
+    ``mu`` and ``logit`` of a count-output stage 1 (torch tensors (n, 2 * bins, H, W), any
+    memory format, e.g. channels_last): ``(index, counts)``, the flat C-order positions
+    of the kept voxels in (n, 2 * bins, H, W), increasing, and their int64 event counts
+    ``round(max(mu, 1))`` -- the non-zero entries of :func:`events_from_heads`'s grid
+    (:func:`rdnet.events.voxel.entry_events` turns them into events). The comparison
+    ``logit >= logit_threshold(threshold)`` is the one dense pass; only the kept voxels
+    are read after it."""
+    import torch
+    threshold = float(read_decision(decision, "counts")["threshold"])
+    if mu.shape != logit.shape:
+        raise ValidationError("decision", f"mu {tuple(mu.shape)} and logits {tuple(logit.shape)} differ")
+    lt = logit_threshold(threshold)
+    shape = tuple(logit.shape)
+    if lt == float("inf"):
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    keep = (logit >= lt).cpu()
+    # read the mask in memory order (a channels_last tensor is NHWC in memory), then map
+    # the positions back to the C order of (n, C, H, W)
+    perm = sorted(range(keep.dim()), key=lambda d: (-keep.stride(d), d))
+    view = keep.permute(*perm)
+    if not view.is_contiguous():
+        perm, view = list(range(keep.dim())), keep.contiguous()
+    pos = np.unravel_index(np.flatnonzero(view.numpy()), tuple(view.shape))
+    where = [None] * keep.dim()
+    for axis, p in zip(perm, pos):
+        where[axis] = p
+    index = np.ravel_multi_index(tuple(where), shape).astype(np.int64)
+    order = np.argsort(index, kind="stable")
+    index = index[order]
+    mu_kept = mu.float().cpu().numpy()[tuple(w[order] for w in where)]
+    counts = np.rint(np.maximum(mu_kept, 1.0)).astype(np.int64)     # decide_counts' rounding
+    return index, counts
+
+
 def decided_events(stage1, image, x, decision: Mapping | None) -> np.ndarray:
     """(n, 2, bins, H, W) int64 ON/OFF event counts decided from a stage-1 network's
     output on the torch inputs ``image`` (None for events-only) and ``x`` (the signed
     voxel, or ON-then-OFF counts for the count output): the count output applies the
-    fitted occupancy threshold of ``decision`` (:func:`events_from_heads`), the signed
-    output rounds (:func:`events_from_signed`)."""
+    fitted occupancy threshold of ``decision`` on the logits (:func:`decided_entries`:
+    the voxels :func:`events_from_heads` keeps), the signed output rounds
+    (:func:`events_from_signed`)."""
     import torch
     with torch.inference_mode():
         if stage1.output == "counts":
             mu, logit = stage1(image, x, return_heads=True)
-            return events_from_heads(mu, torch.sigmoid(logit), decision)
+            index, counts = decided_entries(mu, logit, decision)
+            out = np.zeros(tuple(logit.shape), np.int64)
+            out.reshape(-1)[index] = counts
+            return polarity_grid(out)
         return events_from_signed(stage1(image, x))

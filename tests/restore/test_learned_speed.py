@@ -1,0 +1,137 @@
+"""The learned restorer's inference path (rdnet.restore.learned: prepare_for_inference,
+channels_last inputs, the decision on logits and the sparse event conversion) gives the
+events of the straightforward path: contiguous network, sigmoid probabilities against
+the threshold, the dense per-window grid through voxel_events."""
+import numpy as np
+import pytest
+import torch
+
+from rdnet.events.voxel import voxel_events, voxel_grid
+from rdnet.nn.decision import decision_dict, events_from_heads
+from rdnet.restore.learned import load_restorer, prepare_for_inference
+from rdnet.train.checkpoint import make_checkpoint, save_checkpoint
+from rdnet.train.loop import build_seeded
+
+from _streams import edge_noise_hot
+
+PARAMS = {"voxel": {"bins": 4, "mode": "hard", "normalize": None}}
+WINDOW = 15_000
+#: events allowed to differ between the layouts: none on this stream (a voxel whose
+#: probability is within float rounding of the threshold could flip; it would change 1-3 events)
+MAX_LAYOUT_DIFF = 0
+
+
+def _checkpoint(path, image_channels=1, threshold=0.45, output="counts"):
+    args = {"kind": "restore", "size": "tiny", "image_channels": image_channels, "bins": 4, "width": 4}
+    if output != "signed":
+        args["restore_output"] = output
+    net = build_seeded(args, 0)
+    g = torch.Generator().manual_seed(5)
+    with torch.no_grad():                        # a trained-looking net: not the identity it starts as
+        for p in net.parameters():
+            p.add_(0.15 * torch.randn(p.shape, generator=g))
+    extra = {"voxel": {"bins": 4, "mode": "hard", "normalize": None}, "window_us": WINDOW,
+             "decision": decision_dict(threshold if output == "counts" else None)}
+    save_checkpoint(path, make_checkpoint(net, "restore", args, step=1, extra=extra, with_rng=False))
+    return path
+
+
+def _frame(t_mid, W=60, H=40):
+    """A linear grey frame: a bright band left of the sweeping edge."""
+    x = np.arange(W)[None, :].repeat(H, 0)
+    return np.where(x < t_mid // 1000, 0.8, 0.1).astype(np.float32)
+
+
+def _restore_all(r, ev, frames=True):
+    out = [r.restore(ev, t0, t0 + WINDOW, _frame(t0 + WINDOW // 2) if frames else None)
+           for t0 in range(0, 60_000, WINDOW)]
+    return np.concatenate([o.array for o in out])
+
+
+def _reference(r, ev, frames=True):
+    """The path before the speed-ups: contiguous inputs, sigmoid >= threshold, dense voxel_events."""
+    parts = []
+    for t0 in range(0, 60_000, WINDOW):
+        w = ev.slice_time(t0, t0 + WINDOW)
+        x = torch.from_numpy(voxel_grid(w, r.bins, t0, WINDOW, polarity="split").reshape(1, -1, ev.height, ev.width))
+        img = torch.from_numpy(_frame(t0 + WINDOW // 2)[None, None]) if frames else None
+        with torch.inference_mode():
+            mu, logit = r.net(img, x, return_heads=True)
+        grid = events_from_heads(mu, torch.sigmoid(logit), r.decision)[0]
+        res = voxel_events(grid, t0, WINDOW)
+        parts.append(res.slice_time(t0, t0 + WINDOW).array)
+    return np.concatenate(parts)
+
+
+def _diff(a, b):
+    """Events in one array and not the other (multiset difference, both ways)."""
+    ka = np.sort(a, order=("t", "x", "y", "p"))
+    kb = np.sort(b, order=("t", "x", "y", "p"))
+    if ka.size == kb.size and np.array_equal(ka, kb):
+        return 0
+    u, ca = np.unique(ka, return_counts=True)
+    v, cb = np.unique(kb, return_counts=True)
+    both = np.union1d(u, v)
+    na = np.zeros(both.size, int)
+    nb = np.zeros(both.size, int)
+    na[np.searchsorted(both, u)] = ca
+    nb[np.searchsorted(both, v)] = cb
+    return int(np.abs(na - nb).sum())
+
+
+@pytest.mark.parametrize("image_channels", [1, 0])
+def test_channels_last_and_contiguous_restore_the_same_events(tmp_path, image_channels):
+    ev, _ = edge_noise_hot(seed=3)
+    path = _checkpoint(tmp_path / "m.pt", image_channels)
+    has_frames = bool(image_channels)
+    r = load_restorer(path, has_frames=has_frames, params=PARAMS)
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        outs = {}
+        for cl in (False, True):
+            r.channels_last = prepare_for_inference(r.net, r.device, channels_last=cl)
+            assert r.net.net.ending.weight.is_contiguous(memory_format=torch.channels_last) == cl
+            outs[cl] = _restore_all(r, ev, has_frames)
+        r.channels_last = prepare_for_inference(r.net, r.device, channels_last=False)
+        ref = _reference(r, ev, has_frames)
+    finally:
+        torch.set_num_threads(threads)
+    assert 0 < len(ref) and len(ref) != len(ev)            # the net decides something
+    np.testing.assert_array_equal(outs[False], ref)        # the logit/sparse path: exactly the old events
+    assert _diff(outs[True], outs[False]) <= MAX_LAYOUT_DIFF
+    assert np.all(np.diff(outs[True]["t"]) >= 0)
+
+
+def test_prepare_for_inference_chooses_channels_last_on_cpu_with_two_threads(tmp_path):
+    r = load_restorer(_checkpoint(tmp_path / "m.pt"), has_frames=True, params=PARAMS)
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        assert prepare_for_inference(r.net, "cpu") is True and not r.net.training
+        assert r.net.net.ending.weight.is_contiguous(memory_format=torch.channels_last)
+        assert prepare_for_inference(r.net, "cuda") is False           # no GPU needed: only the choice
+        assert r.net.net.ending.weight.is_contiguous()
+        torch.set_num_threads(1)
+        assert prepare_for_inference(r.net, "cpu") is False
+        assert load_restorer(tmp_path / "m.pt", has_frames=True, params=PARAMS).channels_last is False
+        torch.set_num_threads(2)
+        assert load_restorer(tmp_path / "m.pt", has_frames=True, params=PARAMS).channels_last is True
+    finally:
+        torch.set_num_threads(threads)
+
+
+def test_signed_output_restores_the_same_events_in_both_layouts(tmp_path):
+    """The paper's signed output (rounded, no threshold) through the channels_last path."""
+    ev, _ = edge_noise_hot(seed=4)
+    r = load_restorer(_checkpoint(tmp_path / "s.pt", 0, output="signed"), has_frames=False, params=PARAMS)
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        outs = {}
+        for cl in (False, True):
+            r.channels_last = prepare_for_inference(r.net, r.device, channels_last=cl)
+            outs[cl] = _restore_all(r, ev, frames=False)
+    finally:
+        torch.set_num_threads(threads)
+    assert len(outs[False]) > 0 and _diff(outs[True], outs[False]) <= MAX_LAYOUT_DIFF
