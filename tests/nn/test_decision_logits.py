@@ -5,11 +5,11 @@ boundary too, and for any memory format of the heads."""
 import numpy as np
 import pytest
 import torch
+from _nets import perturbed_count_net
 
 from rdnet.errors import ValidationError
 from rdnet.nn.decision import (_float_to_ordered, _ordered_to_float, decide_counts, decided_entries,
                                decided_events, decision_dict, events_from_heads, logit_threshold)
-from rdnet.nn.models import RestoreNet
 
 torch.set_num_threads(1)
 #: the packaged image-guided model's fitted threshold, two round ones, extremes
@@ -99,13 +99,7 @@ def test_decided_entries_rounding_none_kept_and_checks():
 
 
 def test_decided_events_equals_the_probability_rule_on_a_network():
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(3)
-        net = RestoreNet(1, 3, width=4, enc_depths=(1, 1), middle_depth=1, dec_depths=(1, 1), output="counts")
-        with torch.no_grad():
-            for p in net.parameters():
-                p.add_(0.5 * torch.randn(p.shape))
-    net.eval()
+    net = perturbed_count_net(3, 0.5)
     g = torch.Generator().manual_seed(4)
     x = torch.poisson(torch.full((2, 6, 12, 16), 0.4), generator=g)
     img = torch.rand(2, 1, 12, 16, generator=g)

@@ -2,9 +2,9 @@
 rdnet.restore.learned.prepare_for_inference): the formula's values up to float rounding,
 the layout kept; contiguous inputs and gradient-recording passes (training) unchanged."""
 import torch
+from _nets import perturbed_count_net
 
 from rdnet.nn.blocks import LayerNorm2d
-from rdnet.nn.models import RestoreNet
 
 torch.set_num_threads(1)
 
@@ -47,13 +47,7 @@ def test_layernorm_with_gradients_takes_the_formula_whatever_the_layout():
 
 
 def test_restore_net_heads_in_channels_last_agree_with_contiguous():
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(2)
-        net = RestoreNet(1, 3, width=4, enc_depths=(1, 1), middle_depth=1, dec_depths=(1, 1), output="counts")
-        with torch.no_grad():
-            for p in net.parameters():
-                p.add_(0.3 * torch.randn(p.shape))
-    net.eval()
+    net = perturbed_count_net(2, 0.3)
     g = torch.Generator().manual_seed(3)
     x = torch.poisson(torch.full((1, 6, 14, 18), 0.5), generator=g)
     img = torch.rand(1, 1, 14, 18, generator=g)

@@ -63,6 +63,22 @@ def _reference(r, ev, frames=True):
     return np.concatenate(parts)
 
 
+def _both_layouts(r, ev, frames: bool) -> dict:
+    """Events of ``r`` with the contiguous (False) and the channels_last (True) network, at 2
+    torch threads (the caller's thread count restored)."""
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        outs = {}
+        for cl in (False, True):
+            r.channels_last = prepare_for_inference(r.net, r.device, channels_last=cl)
+            assert r.net.net.ending.weight.is_contiguous(memory_format=torch.channels_last) == cl
+            outs[cl] = _restore_all(r, ev, frames)
+    finally:
+        torch.set_num_threads(threads)
+    return outs
+
+
 def _diff(a, b):
     """Events in one array and not the other (multiset difference, both ways)."""
     ka = np.sort(a, order=("t", "x", "y", "p"))
@@ -85,18 +101,9 @@ def test_channels_last_and_contiguous_restore_the_same_events(tmp_path, image_ch
     path = _checkpoint(tmp_path / "m.pt", image_channels)
     has_frames = bool(image_channels)
     r = load_restorer(path, has_frames=has_frames, params=PARAMS)
-    threads = torch.get_num_threads()
-    try:
-        torch.set_num_threads(2)
-        outs = {}
-        for cl in (False, True):
-            r.channels_last = prepare_for_inference(r.net, r.device, channels_last=cl)
-            assert r.net.net.ending.weight.is_contiguous(memory_format=torch.channels_last) == cl
-            outs[cl] = _restore_all(r, ev, has_frames)
-        r.channels_last = prepare_for_inference(r.net, r.device, channels_last=False)
-        ref = _reference(r, ev, has_frames)
-    finally:
-        torch.set_num_threads(threads)
+    outs = _both_layouts(r, ev, has_frames)
+    r.channels_last = prepare_for_inference(r.net, r.device, channels_last=False)
+    ref = _reference(r, ev, has_frames)
     assert 0 < len(ref) and len(ref) != len(ev)            # the net decides something
     np.testing.assert_array_equal(outs[False], ref)        # the logit/sparse path: exactly the old events
     assert _diff(outs[True], outs[False]) <= MAX_LAYOUT_DIFF
@@ -125,13 +132,5 @@ def test_signed_output_restores_the_same_events_in_both_layouts(tmp_path):
     """The paper's signed output (rounded, no threshold) through the channels_last path."""
     ev, _ = edge_noise_hot(seed=4)
     r = load_restorer(_checkpoint(tmp_path / "s.pt", 0, output="signed"), has_frames=False, params=PARAMS)
-    threads = torch.get_num_threads()
-    try:
-        torch.set_num_threads(2)
-        outs = {}
-        for cl in (False, True):
-            r.channels_last = prepare_for_inference(r.net, r.device, channels_last=cl)
-            outs[cl] = _restore_all(r, ev, frames=False)
-    finally:
-        torch.set_num_threads(threads)
+    outs = _both_layouts(r, ev, frames=False)
     assert len(outs[False]) > 0 and _diff(outs[True], outs[False]) <= MAX_LAYOUT_DIFF
