@@ -10,7 +10,7 @@ def main(args, params):
     from rdnet.config import section
     from rdnet.study.stress import plot_stress, stress_plot_data, stress_test
     res = stress_test(params, args.scenes, args.interp, args.work)
-    res["train_scale"] = list(section(params, "randomize").train_scale)
+    res["train_scale"] = [list(r) for r in section(params, "randomize").train_ranges]
     res["test_scale"] = list(section(params, "randomize").test_scale)
     _common.write_json(args.out, res)
     plot_stress(args.figures / "psnr_vs_strength.png", res)

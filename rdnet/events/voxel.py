@@ -130,22 +130,14 @@ def voxel_events(grid: np.ndarray, t0_us: int, duration_us: int, *, mode: str = 
         raise ValidationError("voxel", "expected (bins, height, width) or (2, bins, height, width), "
                               f"got shape {grid.shape}")
     flat = grid.reshape(-1)          # a view for the C-contiguous grids the callers pass
-    if np.issubdtype(grid.dtype, np.integer) or grid.dtype == np.bool_:
-        if float(scale) == 1.0:
-            nz = np.flatnonzero(flat)
-            counts = flat[nz].astype(np.int64)
-        else:
-            counts_all = np.rint(flat.astype(np.float64) * float(scale)).astype(np.int64)
-            nz = np.flatnonzero(counts_all)
-            counts = counts_all[nz]
-    elif float(scale) == 1.0:
-        rounded = np.rint(flat)
-        nz = np.flatnonzero(rounded)
-        counts = rounded[nz].astype(np.int64)
+    if float(scale) != 1.0:
+        rounded = np.rint(flat.astype(np.float64) * float(scale))
+    elif np.issubdtype(grid.dtype, np.integer) or grid.dtype == np.bool_:
+        rounded = flat                  # whole counts already
     else:
-        counts_all = np.rint(flat.astype(np.float64) * float(scale)).astype(np.int64)
-        nz = np.flatnonzero(counts_all)
-        counts = counts_all[nz]
+        rounded = np.rint(flat)         # in the grid's own precision
+    nz = np.flatnonzero(rounded)
+    counts = rounded[nz].astype(np.int64)
     return entry_events(nz, counts, grid.shape, t0_us, duration_us, mode=mode)
 
 
