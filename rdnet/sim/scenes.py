@@ -54,7 +54,10 @@ class ScenesConfig:
     ``zoom``: typical rotation (degrees) / relative scale change per frame; ``shake_px``:
     amplitude of the fast shake; ``n_objects`` foreground objects per sequence moving at
     ``object_speed_px`` per frame; ``texture_fraction`` of the sequences get a procedural
-    background instead of an image; ``supersample``: render factor for antialiasing.
+    background instead of an image; ``static_fraction`` of the sequences are filmed by a
+    still camera (no pan, shake, rotation or zoom: only the objects move, as in a
+    surveillance or static-DVS recording), decided by a random stream of their own so the other
+    sequences are drawn exactly as with 0; ``supersample``: render factor for antialiasing.
 
     ``source: gopro`` reads real sharp sequences instead of rendering (the ``paper``
     profile): ``gopro_root`` holds ``train/<sequence>/`` and ``test/<sequence>/`` image
@@ -77,6 +80,7 @@ class ScenesConfig:
     n_objects: int = 2
     object_speed_px: float = 1.5
     texture_fraction: float = 0.25
+    static_fraction: float = 0.0
     supersample: int = 2
     seed: int = 0
     source: Literal["embedded", "gopro"] = "embedded"
@@ -105,8 +109,9 @@ class ScenesConfig:
             raise ConfigError("scenes.zoom", f"must be < 0.2 per frame, got {self.zoom}")
         if self.n_objects < 0:
             raise ConfigError("scenes.n_objects", f"must be >= 0, got {self.n_objects}")
-        if not 0 <= self.texture_fraction <= 1:
-            raise ConfigError("scenes.texture_fraction", f"must be in [0, 1], got {self.texture_fraction}")
+        for k in ("texture_fraction", "static_fraction"):
+            if not 0 <= getattr(self, k) <= 1:
+                raise ConfigError(f"scenes.{k}", f"must be in [0, 1], got {getattr(self, k)}")
         if not 1 <= self.supersample <= 4:
             raise ConfigError("scenes.supersample", f"must be 1..4, got {self.supersample}")
 
@@ -213,6 +218,11 @@ def _smooth_param(rng, n_frames: int, rate: float, wobble: float, shake: float) 
             "phase": [float(x) for x in rng.uniform(0, 2 * np.pi, len(amps))]}
 
 
+def _still(p: dict) -> dict:
+    """The trajectory ``p`` held at its start (no drift, no wobble, no shake)."""
+    return {**p, "v": 0.0, "a": [0.0] * len(p["a"])}
+
+
 def eval_param(p: dict, k: np.ndarray) -> np.ndarray:
     """Evaluate a trajectory of :func:`_smooth_param` at frame indices ``k`` (float)."""
     k = np.asarray(k, np.float64)
@@ -273,6 +283,14 @@ def split_rng(cfg: ScenesConfig, split: str) -> np.random.Generator:
     return np.random.default_rng([cfg.seed, SPLITS.index(_check_split(split))])
 
 
+def still_cameras(cfg: ScenesConfig, split: str) -> np.ndarray:
+    """(n,) bool: which sequences of ``split`` have a still camera (``static_fraction``), from
+    a generator of their own seeded by (seed, split, 1)."""
+    n = cfg.count(split)
+    u = np.random.default_rng([cfg.seed, SPLITS.index(_check_split(split)), 1]).random(n)
+    return u < cfg.static_fraction
+
+
 def _object_spec(rng, cfg: ScenesConfig, images: tuple[str, ...]) -> dict:
     m = min(cfg.height, cfg.width)
     dx, dy = _direction(rng)
@@ -300,11 +318,14 @@ def make_specs(cfg: ScenesConfig, split: str, rng: np.random.Generator | None = 
     """The :class:`SceneSpec` of every sequence of ``split`` (``rng`` default: :func:`split_rng`).
 
     Backgrounds cycle through the split's images in a random order so each is used; a
-    ``texture_fraction`` of the sequences get a procedural texture instead.
+    ``texture_fraction`` of the sequences get a procedural texture instead. Which sequences
+    have a still camera (``static_fraction``) comes from a stream of its own
+    (:func:`still_cameras`), so ``rng``'s draws do not depend on it.
     """
     rng = split_rng(cfg, split) if rng is None else rng
     images = TRAIN_IMAGES if split == "train" else TEST_IMAGES
     order = list(rng.permutation(len(images)))
+    still = still_cameras(cfg, split)
     specs = []
     for i in range(cfg.count(split)):
         if rng.random() < cfg.texture_fraction:
@@ -323,6 +344,8 @@ def make_specs(cfg: ScenesConfig, split: str, rng: np.random.Generator | None = 
             "angle": _smooth_param(rng, cfg.n_frames, rot, 0.5 * cfg.rotation_deg, 0.0),
             "log_scale": _smooth_param(rng, cfg.n_frames, zm, 0.5 * cfg.zoom, 0.0),
         }
+        if still[i]:
+            camera = {k: _still(p) for k, p in camera.items()}
         objects = tuple(_object_spec(rng, cfg, images) for _ in range(cfg.n_objects))
         specs.append(SceneSpec(
             split=split, index=i, height=cfg.height, width=cfg.width, n_frames=cfg.n_frames,

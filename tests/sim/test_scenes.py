@@ -7,7 +7,8 @@ import pytest
 from rdnet.config import from_dict
 from rdnet.errors import ConfigError
 from rdnet.sim.scenes import (TEST_IMAGES, TEXTURES, TRAIN_IMAGES, SceneSpec, ScenesConfig, load_image,
-                              make_specs, procedural_texture, render_sequence, render_split)
+                              make_specs, procedural_texture, render_sequence, render_split,
+                              still_cameras)
 
 SMALL = ScenesConfig(n_train=3, n_test=2, height=32, width=40, n_frames=12, n_objects=2, seed=7)
 
@@ -104,3 +105,33 @@ def test_textures_and_config_errors():
         procedural_texture("plaid", 8, 8, rng)
     with pytest.raises(ConfigError, match="split"):
         make_specs(SMALL, "val")
+
+
+def test_static_fraction_stills_cameras_and_leaves_other_draws_alone():
+    cfg = dataclasses.replace(SMALL, n_train=12, n_test=6)
+    for split in ("train", "test"):
+        base = make_specs(cfg, split)
+        mixed = make_specs(dataclasses.replace(cfg, static_fraction=0.5), split)
+        still = still_cameras(dataclasses.replace(cfg, static_fraction=0.5), split)
+        assert 0 < still.sum() < len(still)                                    # a mix at 0.5
+        assert not still_cameras(cfg, split).any()                             # default 0: none
+        assert still_cameras(dataclasses.replace(cfg, static_fraction=1.0), split).all()
+        for b, m, s in zip(base, mixed, still):
+            if s:   # same sequence but for a camera held at its start
+                assert dataclasses.replace(m, camera=b.camera) == b
+                for p in m.camera.values():
+                    assert p["v"] == 0 and not any(p["a"])
+            else:   # every other sequence is drawn exactly as without the key
+                assert m == b
+
+
+def test_still_camera_only_the_objects_change():
+    cfg = dataclasses.replace(SMALL, static_fraction=1.0, n_objects=1, object_speed_px=2.0)
+    spec = make_specs(cfg, "train")[0]
+    fr = render_sequence(spec)
+    changed = np.abs(fr.images - fr.images[0]).max(axis=0) > 1e-6
+    assert 0.01 < changed.mean() < 0.9        # the object's path moves, the background does not
+    bg = render_sequence(dataclasses.replace(spec, objects=()))
+    np.testing.assert_allclose(bg.images, np.broadcast_to(bg.images[0], bg.images.shape), atol=1e-6)
+    with pytest.raises(ConfigError, match="scenes.static_fraction"):
+        ScenesConfig(static_fraction=-0.1)
