@@ -13,6 +13,11 @@ The frames come from any object with the attributes of :class:`FrameSeries` (a
 :class:`~rdnet.calib.context.CalibContext`, or the frames of ``rdnet deblur``). To compare
 several event streams over the same pixel-intervals, pass one ``active`` mask to every
 call (e.g. the union of their :func:`active_intervals`).
+
+The same scores from sufficient statistics (for streams scored interval by interval,
+:class:`rdnet.deblur.consistency.ConsistencyAccumulator`): :func:`moments` of the (dL, pred)
+pairs of a set of pixel-intervals, :func:`merge_moments` over disjoint sets,
+:func:`moment_scores`; equal to :func:`consistency` up to float summation order.
 """
 from __future__ import annotations
 
@@ -38,19 +43,28 @@ class FrameSeries(Protocol):
     def n_pixels(self) -> int: ...
 
 
+def interval_events(events: Events, ctx: FrameSeries, first: int = 0,
+                    count: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(interval - ``first``, flat pixel, ON) of the ``events`` in the frame intervals
+    ``first`` .. ``first + count - 1`` (default: all N-1 from the first); interval k is
+    (t_k, t_{k+1}], events outside the chosen intervals are left out."""
+    ft = ctx.frame_t
+    count = len(ft) - 1 - first if count is None else count
+    a = events.array
+    k = np.searchsorted(ft, a["t"], side="left") - 1 - first      # (t_k, t_{k+1}] -> k
+    ok = (k >= 0) & (k < count)
+    pix = a["y"][ok].astype(np.int64) * ctx.width + a["x"][ok]
+    return k[ok], pix, a["p"][ok].astype(bool)
+
+
 def interval_counts(events: Events, ctx: FrameSeries) -> tuple[np.ndarray, np.ndarray]:
     """(N-1, P) ON and OFF counts of ``events`` between consecutive frames."""
-    ft = ctx.frame_t
-    a = events.array
-    k = np.searchsorted(ft, a["t"], side="left") - 1      # (t_k, t_{k+1}] -> k
-    ok = (k >= 0) & (k < len(ft) - 1)
-    k = k[ok]
-    pix = a["y"][ok].astype(np.int64) * ctx.width + a["x"][ok]
-    on = a["p"][ok].astype(bool)
-    n = (len(ft) - 1) * ctx.n_pixels
+    count = len(ctx.frame_t) - 1
+    k, pix, on = interval_events(events, ctx)
+    n = count * ctx.n_pixels
     key = k * ctx.n_pixels + pix
-    n_on = np.bincount(key[on], minlength=n).reshape(len(ft) - 1, -1)
-    n_off = np.bincount(key[~on], minlength=n).reshape(len(ft) - 1, -1)
+    n_on = np.bincount(key[on], minlength=n).reshape(count, -1)
+    n_off = np.bincount(key[~on], minlength=n).reshape(count, -1)
     return n_on, n_off
 
 
@@ -60,10 +74,20 @@ def log_changes(ctx: FrameSeries) -> np.ndarray:
     return np.diff(lf, axis=0).astype(np.float64)
 
 
+def inside_window(frame_t: np.ndarray, t0: int, t1: int) -> np.ndarray:
+    """(N-1,) bool: the frame intervals inside the compared window [t0, t1)."""
+    return (frame_t[:-1] >= t0) & (frame_t[1:] <= t1)
+
+
+def changed(n_events: np.ndarray, dL: np.ndarray, threshold_on: float, threshold_off: float) -> np.ndarray:
+    """bool, elementwise: a pixel-interval with at least one event (``n_events``, ON + OFF)
+    or a log change ``dL`` of at least the smaller threshold."""
+    return (n_events > 0) | (np.abs(dL) >= min(threshold_on, threshold_off))
+
+
 def _active(n_on, n_off, dL, ctx: FrameSeries, threshold_on: float, threshold_off: float) -> np.ndarray:
-    inside = (ctx.frame_t[:-1] >= ctx.t0) & (ctx.frame_t[1:] <= ctx.t1)
-    act = ((n_on + n_off) > 0) | (np.abs(dL) >= min(threshold_on, threshold_off))
-    return act & inside[:, None]
+    act = changed(n_on + n_off, dL, threshold_on, threshold_off)
+    return act & inside_window(ctx.frame_t, ctx.t0, ctx.t1)[:, None]
 
 
 def active_intervals(events: Events, ctx: FrameSeries, threshold_on: float, threshold_off: float) -> np.ndarray:
@@ -94,4 +118,49 @@ def consistency(events: Events, ctx: FrameSeries, threshold_on: float, threshold
     xx = float((x * x).sum())
     if xx > 0:
         out["slope"] = float((x * y).sum() / xx)
+    return out
+
+
+#: the sufficient statistics :func:`moments` returns, in order (y = dL, x = pred)
+MOMENTS = ("n", "sum_y", "sum_yy", "sum_x", "sum_xx", "sum_xy", "min_x", "max_x", "min_y", "max_y")
+
+
+def moments(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """(10,) float64 sufficient statistics (:data:`MOMENTS`) of the pairs (``y`` = dL,
+    ``x`` = pred) of a set of pixel-intervals: their number, the sums of y, y^2, x, x^2,
+    xy, and the extremes of x and y (+-inf when empty; they decide "no variation" exactly)."""
+    y, x = np.asarray(y, np.float64), np.asarray(x, np.float64)
+    if y.size == 0:
+        return np.array([0.0] * 6 + [np.inf, -np.inf, np.inf, -np.inf])
+    return np.array([y.size, y.sum(), (y * y).sum(), x.sum(), (x * x).sum(), (x * y).sum(),
+                     x.min(), x.max(), y.min(), y.max()])
+
+
+def merge_moments(m: np.ndarray) -> np.ndarray:
+    """The :func:`moments` of the union of disjoint sets from theirs, (..., 10) -> (10,)."""
+    m = np.asarray(m, np.float64).reshape(-1, len(MOMENTS))
+    return np.r_[m[:, :6].sum(axis=0), m[:, 6].min(initial=np.inf), m[:, 7].max(initial=-np.inf),
+                 m[:, 8].min(initial=np.inf), m[:, 9].max(initial=-np.inf)]
+
+
+def moment_scores(m: np.ndarray, gain: float = 1.0) -> dict:
+    """:func:`consistency`'s ``{"r2", "correlation", "active", "slope"}`` from the
+    :func:`moments` of the scored pixel-intervals, with pred scaled by ``gain`` (= the
+    measure at thresholds x gain): ``r2 = 1 - sum (y - g x)^2 / sum (y - mean y)^2`` with
+    ``sum (y - g x)^2 = Syy - 2 g Sxy + g^2 Sxx``; Pearson correlation from the centred sums;
+    ``slope = sum g x y / sum (g x)^2``. The same NaN rules: fewer than 3 pairs, y (for r2)
+    or x or y (correlation) constant, sum x^2 = 0 (slope)."""
+    n, sy, syy, sx, sxx, sxy, xmin, xmax, ymin, ymax = (float(v) for v in m)
+    sx, sxx, sxy = gain * sx, gain * gain * sxx, gain * sxy
+    out = {"active": int(n), "r2": float("nan"), "correlation": float("nan"), "slope": float("nan")}
+    if n < 3:
+        return out
+    ss = syy - sy * sy / n
+    if ymax > ymin and ss > 0:
+        out["r2"] = 1.0 - (syy - 2.0 * sxy + sxx) / ss
+        vx = sxx - sx * sx / n
+        if xmax > xmin and gain != 0 and vx > 0:
+            out["correlation"] = float(np.clip((sxy - sx * sy / n) / np.sqrt(vx * ss), -1.0, 1.0))
+    if sxx > 0:
+        out["slope"] = sxy / sxx
     return out

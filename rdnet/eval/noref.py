@@ -21,7 +21,8 @@
   (multiples of the interval), so two streams of one recording share their packets.
 * **Event-frame consistency** (recordings with frames): the measure of
   :mod:`rdnet.deblur.consistency` (built on :mod:`rdnet.calib.consistency`), reused by
-  :func:`frame_consistency`.
+  :func:`frame_consistency` for whole streams; ``rdnet restore`` computes the same numbers
+  window by window with :class:`rdnet.deblur.consistency.ConsistencyAccumulator`.
 * **Region fractions** (static-camera recordings): :func:`mask_fractions` -- the fraction of
   the raw events a restorer keeps inside each given pixel mask (e.g. the moving person,
   the background, known hot pixels). The masks come from the caller; :func:`activity_mask`

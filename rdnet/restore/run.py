@@ -14,7 +14,10 @@ the recording has them) and OUT.json beside it (OUT with suffix ``.json``):
 * ``scores``: no-reference scores of the raw and the restored stream: ``esr``
   (:func:`rdnet.eval.noref.esr_score`, higher = more structured) and, with frames,
   ``consistency`` (:mod:`rdnet.deblur.consistency`: event-frame consistency, higher is
-  better; null with a note when the raw stream has more than ``score_max_events``),
+  better; null with a note when the raw stream has more than ``score_max_events``), both
+  computed window by window in the restore loop (the consistency holds count images only
+  for the frame intervals in progress:
+  :class:`~rdnet.deblur.consistency.ConsistencyAccumulator`),
 * ``hot_pixels``: the pixels the hot-pixel pass flagged (:mod:`rdnet.restore.hotpixels`;
   every method but raw): ``factor``, ``min_rate_hz``, ``count``, ``pixels`` ([x, y], the
   first 1,000) and ``events_dropped``,
@@ -140,9 +143,12 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
         grey = frames.grey() if has_frames else None
         esr_raw = EsrAccumulator(src.width, src.height, cfg.esr_interval_us)
         esr_out = EsrAccumulator(src.width, src.height, cfg.esr_interval_us)
-        keep_streams = has_frames and cfg.scores
-        raw_parts: list[Events] = []
-        out_parts: list[Events] = []
+        consistency = None                          # the event-frame consistency, streamed
+        if has_frames and cfg.scores:
+            from rdnet.deblur.consistency import ConsistencyAccumulator
+            sensor = section(params, "sensor")
+            consistency = ConsistencyAccumulator(frames, ("raw", "restored"), sensor.threshold_on,
+                                                 sensor.threshold_off, sensor.log_eps, grey=grey)
         n_in = n_out = n_win = n_pending = 0
         pending: list[Events] = []
         t_first = t_last = None
@@ -175,13 +181,12 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                 if cfg.scores:
                     esr_raw.add(recorded)
                     esr_out.add(res)
-                if keep_streams:
+                if consistency is not None:
                     if n_in + len(ev) > cfg.score_max_events:
-                        keep_streams = False
-                        raw_parts, out_parts = [], []
-                    else:
-                        raw_parts.append(recorded)
-                        out_parts.append(res)
+                        consistency = None
+                    else:                                   # every event before the window's end given
+                        consistency.add("raw", recorded, t1 + shift)
+                        consistency.add("restored", res, t1)
                 if len(ev):
                     t_first = int(ev.t[0]) if t_first is None else t_first
                     t_last = int(ev.t[-1])
@@ -201,11 +206,8 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                               "interval_us": cfg.esr_interval_us} if cfg.scores else None,
                       "consistency": None}
             notes = [] if cfg.scores else ["no-reference scores off (restore.scores=false)"]
-            if has_frames and keep_streams:
-                from rdnet.eval.noref import frame_consistency
-                raw_all = concatenate(raw_parts)
-                scores["consistency"] = frame_consistency(frames, {"raw": raw_all, "restored": concatenate(out_parts)},
-                                                          section(params, "sensor"), raw_all)
+            if consistency is not None:
+                scores["consistency"] = consistency.scores()
             elif has_frames and cfg.scores:
                 notes.append(f"event-frame consistency not scored: more than {cfg.score_max_events} raw events")
             result = {

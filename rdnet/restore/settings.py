@@ -27,11 +27,13 @@ class RestoreConfig:
     ``device``/``batch_size``: for the learned restorer. ``esr_interval_us``: packet length
     of the ESR no-reference score (E-MLB uses 33 ms); ``scores``: compute the no-reference
     scores at all (false: faster, OUT.json has counts only); ``score_max_events``: event-frame
-    consistency is scored only when the raw stream has at most this many events (it holds
-    both streams in memory). ``hot_pixel_factor``/``hot_pixel_min_hz``: before every method
-    but raw, one pass over the recording flags the pixels whose event count exceeds factor x
-    the median of their neighbours' on the sensor and whose rate exceeds min_hz, and their
-    events are dropped (:mod:`rdnet.restore.hotpixels`; factor 0: off, else >= 1). ``latency_us``: a constant
+    consistency is scored only when the raw stream has at most this many events (it is
+    streamed, with count images only for the frame intervals in progress: the cap bounds its
+    time, not memory; the default, 1e9, is no cap in practice).
+    ``hot_pixel_factor``/``hot_pixel_min_hz``: before every method but raw, one pass over
+    the recording flags the pixels whose event count exceeds factor x the median of their
+    neighbours' on the sensor and whose rate exceeds min_hz, and their events are dropped
+    (:mod:`rdnet.restore.hotpixels`; factor 0: off, else >= 1). ``latency_us``: a constant
     sensor latency undone before anything else: subtracted from every event timestamp
     (events that would fall before 0 are dropped), e.g. the ``latency_us`` that
     ``rdnet calibrate`` fitted (``rdnet restore --calibration REPORT``); 0: off."""
@@ -52,7 +54,7 @@ class RestoreConfig:
     batch_size: int = 8
     esr_interval_us: int = 33_000
     scores: bool = True
-    score_max_events: int = 5_000_000
+    score_max_events: int = 1_000_000_000
     hot_pixel_factor: float = 20.0
     hot_pixel_min_hz: float = 100.0
     latency_us: float = 0.0

@@ -240,6 +240,39 @@ def test_consistency_skipped_beyond_score_max_events(tmp_path):
     assert info["scores"]["esr"]["raw"] == info["scores"]["esr"]["restored"]   # raw = identity
 
 
+def _edge_frames(W=60, H=40, n=4):
+    """Frames of edge_noise_hot's sweeping edge (1 ms a column): bright where it has passed."""
+    t = 5_000 + 15_000 * np.arange(n)
+    im = np.full((n, H, W), 0.1, np.float32)
+    for k, tk in enumerate(t):
+        im[k, :, :tk // 1000] = 0.8
+    return Frames(im, t, np.full(n, 1000))
+
+
+@pytest.mark.parametrize("latency_us", [0, 2500])
+def test_streamed_consistency_equals_the_whole_stream_score(tmp_path, latency_us):
+    """OUT.json's event-frame consistency, scored window by window in the restore loop, is
+    the whole-stream score (rdnet.eval.noref.frame_consistency) of raw = the stream as
+    recorded (the events the latency shift keeps, at their recorded times) and restored =
+    the output (at the corrected times)."""
+    from rdnet.config import section
+    from rdnet.eval.noref import frame_consistency
+    ev, _ = edge_noise_hot(seed=2)
+    frames = _edge_frames(ev.width, ev.height)
+    write_recording(tmp_path / "in.h5", Recording(ev.width, ev.height, events=ev, frames=frames, sensor="SYN"))
+    out = tmp_path / "o.h5"
+    assert main(["restore", str(tmp_path / "in.h5"), str(out), "--method", "baf", "--no-progress",
+                 "--set", "restore.window_us=7000", "--set", f"restore.latency_us={latency_us}"]) == 0
+    got = json.loads(out.with_suffix(".json").read_text())["scores"]["consistency"]
+    raw = ev.select(ev.t >= latency_us)
+    want = frame_consistency(frames, {"raw": raw, "restored": read_recording(out).events}, section({}, "sensor"), raw)
+    assert list(got) == ["raw", "restored"] and want["raw"]["active"] > 1000
+    for name in want:
+        g = {k: float("nan") if v is None else v for k, v in got[name].items()}
+        assert g == pytest.approx(want[name], rel=1e-9, abs=1e-12, nan_ok=True), name
+    assert got["restored"]["events"] < got["raw"]["events"] == len(raw)
+
+
 @pytest.mark.parametrize("method,sets", [("raw", {}), ("baf", {}), ("stcf", {"stcf_same_polarity": True}),
                                          ("gef", {}), ("gef", {"gef_mode": "filter"})])
 def test_restorer_contract(method, sets):
