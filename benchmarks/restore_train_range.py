@@ -86,6 +86,17 @@ def table(res: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def write_results(out: Path, res: dict, render) -> None:
+    """``res`` (with the load average after the run) to ``out`` (.json) and ``render(res)`` to
+    the .md beside it, both written atomically; the table is logged too."""
+    from rdnet.eval.report import write_text_atomic
+    res["load_average_1min_after"] = os.getloadavg()[0]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out, json.dumps(res, indent=2) + "\n")
+    write_text_atomic(out.with_suffix(".md"), render(res))
+    log.info("\n%s", render(res))
+
+
 def main() -> None:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -104,7 +115,6 @@ def main() -> None:
     from restore_learned_eval import eval_pairs
 
     from rdnet.config import load_params
-    from rdnet.eval.report import write_text_atomic
 
     torch.set_num_threads(1)
     params = load_params(ROOT / "params.yaml")
@@ -138,11 +148,7 @@ def main() -> None:
                           "val_metrics": s["val_metrics"],
                           "at_threshold": {str(t): {m: scored[f"{name}/{task}/{seed}@{t}"][m] for m in METRICS}
                                            for t in args.also_threshold}})
-    res["load_average_1min_after"] = os.getloadavg()[0]
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(args.out, json.dumps(res, indent=2) + "\n")
-    write_text_atomic(args.out.with_suffix(".md"), table(res))
-    log.info("\n%s", table(res))
+    write_results(args.out, res, table)
 
 
 if __name__ == "__main__":

@@ -169,10 +169,9 @@ def main() -> None:
     sys.path.insert(0, str(ROOT / "benchmarks"))
     import torch
     from restore_learned_eval import eval_pairs
-    from restore_train_range import train
+    from restore_train_range import train, write_results
 
     from rdnet.config import load_params
-    from rdnet.eval.report import write_text_atomic
 
     torch.set_num_threads(1)
     params = load_params(ROOT / "params.yaml")
@@ -225,11 +224,7 @@ def main() -> None:
             runs = {"raw": ("raw", None), "baf": ("baf", None), **{k: ("rdnet", ck) for k, ck in ckpts.items()}}
             res["real"][rec] = {"path": str(path.relative_to(ROOT.parent)),
                                 **score_real(path, rec, params, runs, Path(tmp))}
-    res["load_average_1min_after"] = os.getloadavg()[0]
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(args.out, json.dumps(res, indent=2) + "\n")
-    write_text_atomic(args.out.with_suffix(".md"), table(res))
-    log.info("\n%s", table(res))
+    write_results(args.out, res, table)
 
 
 if __name__ == "__main__":
