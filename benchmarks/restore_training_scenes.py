@@ -40,10 +40,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_VARIANTS = ['pan={"static_fraction": 0.0}', 'static25={"static_fraction": 0.25}',
                     'static50={"static_fraction": 0.5}']
-#: real recordings (folder under ../shared/real or data/real) and the sensor size of those whose
-#: format does not store it
+#: real recordings (folder names under data/real or ../shared/real)
 RECORDINGS = ("dvxplorer_person", "prophesee_evk4_night", "ecd_shapes_subset", "davis346_road")
-SENSOR_SIZE = {"ecd_shapes_subset": (240, 180)}
 METRICS = ("precision", "recall", "f1", "count_ratio", "l1_all", "l1_events")
 log = logging.getLogger("restore_training_scenes")
 
@@ -62,39 +60,19 @@ def training_pairs(params: dict, scenes_overrides: dict, work: Path) -> Path:
     return work / "pairs" / "train.h5"
 
 
-def find_recording(name: str) -> Path | None:
-    for root in (ROOT / "data" / "real", ROOT.parent / "shared" / "real"):
-        d = root / name
-        if d.is_dir():
-            files = sorted(f for f in d.iterdir() if f.is_file() and f.suffix.lower() not in (".md", ".png", ".json"))
-            if files:
-                return files[0]
-    return None
-
-
 def score_real(path: Path, name: str, params: dict, runs: dict[str, tuple[str, Path | None]], work: Path) -> dict:
-    """``runs``: label -> (method, checkpoint). Events kept, activity / background kept (of the
-    raw events inside / outside the activity mask of ``restore_real``), and the consistency R^2
-    where the recording has frames."""
-    from rdnet.eval.noref import ACTIVITY_MASK, activity_mask, mask_fractions
-    from rdnet.events.io import load
-    from rdnet.restore.run import restore_recording
-
-    size = SENSOR_SIZE.get(name)
-    raw = load(path, sensor_size=size).require_events(str(path))
-    act = activity_mask(raw, **ACTIVITY_MASK)
-    out = {"events": len(raw), "methods": {}}
-    for label, (method, ckpt) in runs.items():
-        dst = work / f"{name}_{label.replace('/', '_')}.h5"
-        res = restore_recording(path, dst, params, method=method, checkpoint=ckpt, progress=False, sensor_size=size)
-        kept = load(dst).events
-        fr = mask_fractions(raw, kept, {"activity": act, "background": ~act})
-        cons = (res["scores"]["consistency"] or {}).get("restored") or {}
-        out["methods"][label] = {"events_out": res["events_out"], "kept_fraction": res["kept_fraction"],
-                                 "activity": fr["activity"]["fraction"], "background": fr["background"]["fraction"],
-                                 "consistency_r2": cons.get("r2_fitted"), "esr": res["scores"]["esr"]["restored"]}
+    """``runs``: label -> (method, checkpoint), scored as ``restore_real`` scores them
+    (:func:`rdnet.restore.real.score_recording`): events kept, activity / background kept,
+    ESR and, with frames, the consistency R^2."""
+    from rdnet.restore.real import Run, score_recording
+    sc = score_recording(name, path, params, [Run(k, m, ck) for k, (m, ck) in runs.items()], work / name,
+                         keep=False)
+    out = {"events": sc.entry["events"], "methods": {}}
+    for label, m in sc.entry["methods"].items():
+        out["methods"][label] = {"events_out": m["events_out"], "kept_fraction": m["kept_fraction"],
+                                 "activity": m["regions"]["activity"], "background": m["regions"]["background"],
+                                 "consistency_r2": m["consistency_r2"], "esr": m["esr"]}
         log.info("%s %s: %s", name, label, out["methods"][label])
-        dst.unlink()
     return out
 
 
@@ -172,6 +150,7 @@ def main() -> None:
     from restore_train_range import train, write_results
 
     from rdnet.config import load_params
+    from rdnet.restore.real import recordings
 
     torch.set_num_threads(1)
     params = load_params(ROOT / "params.yaml")
@@ -216,8 +195,9 @@ def main() -> None:
                 run = res["variants"][name]["runs"][seed]
                 run["test"][test] = {m: scored[key][m] for m in METRICS}
                 run["threshold"], run["val_metrics"] = scored[key]["threshold"], scored[key]["val_metrics"]
+        found = dict(recordings([ROOT / "data" / "real", ROOT.parent / "shared" / "real"]))
         for rec in args.recordings:
-            path = find_recording(rec)
+            path = found.get(rec)
             if path is None:
                 log.warning("%s not found: skipped", rec)
                 continue

@@ -20,9 +20,9 @@
   :class:`EsrAccumulator` computes it chunk by chunk on an absolute packet grid
   (multiples of the interval), so two streams of one recording share their packets.
 * **Event-frame consistency** (recordings with frames): the measure of
-  :mod:`rdnet.deblur.consistency` (built on :mod:`rdnet.calib.consistency`), reused by
-  :func:`frame_consistency` for whole streams; ``rdnet restore`` computes the same numbers
-  window by window with :class:`rdnet.deblur.consistency.ConsistencyAccumulator`.
+  :mod:`rdnet.deblur.consistency` (built on :mod:`rdnet.calib.consistency`):
+  ``compare_consistency`` for whole streams (``rdnet deblur``), the same numbers window by
+  window with :class:`~rdnet.deblur.consistency.ConsistencyAccumulator` (``rdnet restore``).
 * **Region fractions** (static-camera recordings): :func:`mask_fractions` -- the fraction of
   the raw events a restorer keeps inside each given pixel mask (e.g. the moving person,
   the background, known hot pixels). The masks come from the caller; :func:`activity_mask`
@@ -180,17 +180,6 @@ def esr_score(events: Events, interval_us: int = 33_000) -> float:
     acc = EsrAccumulator(events.width, events.height, interval_us)
     acc.add(events)
     return acc.score()
-
-
-def frame_consistency(frames, streams: Mapping[str, Events], sensor, window_events: Events) -> dict:
-    """Event-frame consistency of each stream (:func:`rdnet.deblur.consistency.compare_consistency`,
-    scored on the same pixel-intervals) with the nominal thresholds and ``log_eps`` of the
-    ``sensor`` settings; the window is where ``frames`` and ``window_events`` overlap."""
-    from rdnet.deblur.consistency import LogFrames, compare_consistency
-    if frames is None or len(frames) < 2:
-        return {}
-    lf = LogFrames.of(frames, window_events, sensor.log_eps)
-    return compare_consistency(lf, streams, sensor.threshold_on, sensor.threshold_off)
 
 
 def pixel_mask(width: int, height: int, coords: Sequence[Sequence[int]]) -> np.ndarray:

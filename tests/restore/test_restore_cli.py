@@ -252,11 +252,11 @@ def _edge_frames(W=60, H=40, n=4):
 @pytest.mark.parametrize("latency_us", [0, 2500])
 def test_streamed_consistency_equals_the_whole_stream_score(tmp_path, latency_us):
     """OUT.json's event-frame consistency, scored window by window in the restore loop, is
-    the whole-stream score (rdnet.eval.noref.frame_consistency) of raw = the stream as
+    the whole-stream score (rdnet.deblur.consistency.compare_consistency) of raw = the stream as
     recorded (the events the latency shift keeps, at their recorded times) and restored =
     the output (at the corrected times)."""
     from rdnet.config import section
-    from rdnet.eval.noref import frame_consistency
+    from rdnet.deblur.consistency import LogFrames, compare_consistency
     ev, _ = edge_noise_hot(seed=2)
     frames = _edge_frames(ev.width, ev.height)
     write_recording(tmp_path / "in.h5", Recording(ev.width, ev.height, events=ev, frames=frames, sensor="SYN"))
@@ -265,7 +265,9 @@ def test_streamed_consistency_equals_the_whole_stream_score(tmp_path, latency_us
                  "--set", "restore.window_us=7000", "--set", f"restore.latency_us={latency_us}"]) == 0
     got = json.loads(out.with_suffix(".json").read_text())["scores"]["consistency"]
     raw = ev.select(ev.t >= latency_us)
-    want = frame_consistency(frames, {"raw": raw, "restored": read_recording(out).events}, section({}, "sensor"), raw)
+    sensor = section({}, "sensor")
+    want = compare_consistency(LogFrames.of(frames, raw, sensor.log_eps), {"raw": raw, "restored": read_recording(out).events},
+                               sensor.threshold_on, sensor.threshold_off)
     assert list(got) == ["raw", "restored"] and want["raw"]["active"] > 1000
     for name in want:
         g = {k: float("nan") if v is None else v for k, v in got[name].items()}

@@ -1,0 +1,118 @@
+"""Restore methods on real recordings, scored without ground truth (stage ``restore_real``,
+``benchmarks/restore_training_scenes.py``).
+
+Per recording and run: events kept, ESR (E-MLB), event-frame consistency (with frames), and
+region fractions: the share of the raw events kept inside the *activity mask* (where the
+scene moves; :func:`rdnet.eval.noref.activity_mask` with :data:`~rdnet.eval.noref.ACTIVITY_MASK`,
+one rule for every recording), outside it (background activity), and on the known hot
+pixels of the recording when given.
+"""
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Mapping, Sequence
+
+log = logging.getLogger(__name__)
+
+#: (x, y) hot pixels listed in ../shared/real/README.md, per recording folder name.
+HOT_PIXELS = {"dvxplorer_person": [(187, 105), (204, 157), (241, 196), (307, 97)]}
+#: (width, height) of recordings whose format does not store it (README: DAVIS240C).
+SENSOR_SIZE = {"ecd_shapes_subset": (240, 180)}
+#: file suffixes of a recording folder that are not recordings
+SKIP = {".md", ".png", ".jpg", ".json", ".yaml", ".dvc"}
+
+
+def recordings(roots: Iterable[Path | None]) -> list[tuple[str, Path]]:
+    """(folder name, first recording file) of every recording folder under ``roots``; one
+    per folder name, first root first (missing roots are skipped)."""
+    seen, out = set(), []
+    for root in roots:
+        if root is None or not root.is_dir():
+            continue
+        for d in sorted(p for p in root.iterdir() if p.is_dir()):
+            files = sorted(f for f in d.iterdir() if f.is_file() and f.suffix.lower() not in SKIP)
+            if files and d.name not in seen:
+                seen.add(d.name)
+                out.append((d.name, files[0]))
+    return out
+
+
+@dataclass(frozen=True)
+class Run:
+    """One restore run: ``key`` (its name and output file stem), ``method``, an optional
+    ``checkpoint``, overrides of the ``restore`` params section and a ``suffix`` for its label."""
+
+    key: str
+    method: str
+    checkpoint: Path | None = None
+    restore: Mapping = field(default_factory=dict)
+    suffix: str = ""
+
+
+@dataclass
+class Scored:
+    """What :func:`score_recording` returns: the summary ``entry``, the raw events, the
+    restored events per run key (kept only when asked) and the activity mask."""
+
+    entry: dict
+    raw: object
+    outs: dict
+    activity: object
+
+
+def score_recording(name: str, path: Path, params: Mapping, runs: Sequence[Run], out_dir: Path, *,
+                    keep: bool = True) -> Scored:
+    """Run every ``runs`` entry of ``rdnet restore`` on ``path`` (``out_dir/<key>.h5`` and
+    ``<key>.summary.json``, the OUT.json; removed again unless ``keep``) and score it. A learned
+    run whose model is absent is skipped with a warning (a broken one raises)."""
+    from rdnet.errors import ModelNotFoundError
+    from rdnet.eval.noref import ACTIVITY_MASK, activity_mask, mask_fractions, pixel_mask
+    from rdnet.events.io import load
+    from rdnet.restore.run import json_path_for, restore_recording
+
+    size = SENSOR_SIZE.get(name)
+    rec = load(path, sensor_size=size)
+    raw = rec.require_events(str(path))
+    act = activity_mask(raw, **ACTIVITY_MASK)
+    masks = {"activity": act, "background": ~act}
+    hot = HOT_PIXELS.get(name)
+    if hot:
+        masks["hot_pixels"] = pixel_mask(rec.width, rec.height, hot)
+    entry = {"path": str(path), "width": rec.width, "height": rec.height,
+             "has_frames": rec.frames is not None and len(rec.frames) > 0, "events": len(raw),
+             "duration_us": int(raw.t[-1] - raw.t[0]), "activity_mask_pixels": int(act.sum()),
+             "activity_mask": dict(ACTIVITY_MASK), "hot_pixels": hot or [], "methods": {}}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    outs = {}
+    for run in runs:
+        if run.method == "gef" and not entry["has_frames"]:
+            continue
+        out = out_dir / f"{run.key.replace('/', '_')}.h5"
+        run_params = {**params, "restore": {**params.get("restore", {}), **run.restore}}
+        try:
+            res = restore_recording(path, out, run_params, method=run.method, checkpoint=run.checkpoint,
+                                    progress=False, sensor_size=size)
+        except ModelNotFoundError as e:               # a broken model fails; an absent one
+            log.warning("%s: method %s skipped: %s", name, run.key, e)   # only loses its row
+            continue
+        restored = load(out).events
+        cons = res["scores"]["consistency"] or {}
+        entry["methods"][run.key] = {
+            "name": res["method"] + run.suffix, "events_out": res["events_out"],
+            "kept_fraction": res["kept_fraction"],
+            "hot_pixels_flagged": (res["hot_pixels"] or {}).get("count", 0),
+            "esr": res["scores"]["esr"]["restored"],
+            "consistency_r2": (cons.get("restored") or {}).get("r2_fitted"),
+            "regions": {k: v["fraction"] for k, v in mask_fractions(raw, restored, masks).items()}}
+        # (speed is not recorded here, so a committed summary is reproducible: bench_restore.py)
+        summary = out.with_suffix(".summary.json")
+        if keep:
+            outs[run.key] = restored
+            summary.write_text(json.dumps(res, indent=2) + "\n")
+        else:
+            out.unlink()
+            json_path_for(out).unlink(missing_ok=True)
+    return Scored(entry, raw, outs, act)
