@@ -10,6 +10,13 @@ Wang et al. 2004 as documented by scikit-image (Gaussian window sigma 1.5,
 images have PSNR = +inf (reported as such; means over a set containing one are +inf
 too). Per-image values are averaged.
 
+Samples without motion (:func:`has_motion`): a still camera filming a scene in which
+nothing moves during the exposure gives a blurry frame equal to the sharp one at 8 bits.
+There is nothing to deblur, and the blurry input itself scores PSNR = +inf there. The
+study's image means (:func:`rdnet.eval.predict.evaluate_row`, EDI) are taken over the
+samples with motion only, for every row alike (:func:`image_means`); the per-sample
+values keep every sample, with its ``moving`` flag. Restoration metrics use every sample.
+
 Event restoration (:func:`restoration_metrics`), against the undegraded voxels E_u, on
 the *response locations* M = {E_u != 0 or E_d != 0} of each sample (the mask of the
 restoration loss, :func:`rdnet.nn.losses.event_mask`):
@@ -83,6 +90,36 @@ def image_metrics_per_sample(preds, targets) -> dict[str, np.ndarray]:
     return {"psnr": vals[:, 0], "ssim": vals[:, 1]}
 
 
+def has_motion(blurry, sharp) -> np.ndarray:
+    """Per sample of two (N, C, H, W) batches, whether the blurry input differs from the
+    sharp target anywhere at 8 bits (:func:`to_uint8`; module docstring)."""
+    b, s = to_uint8(blurry), to_uint8(sharp)
+    if b.shape != s.shape or b.ndim != 4:
+        raise ValueError(f"expected two (N, C, H, W) arrays of one shape, got {b.shape} and {s.shape}")
+    return (b != s).reshape(b.shape[0], -1).any(axis=1)
+
+
+def image_means(per: Mapping[str, Sequence[float]], moving) -> dict:
+    """``psnr`` and ``ssim`` means over the samples with motion (``moving``, from
+    :func:`has_motion`), with ``n_images`` (how many) and ``still_excluded`` (how many
+    were left out). Means are None when no sample moves."""
+    mv = np.asarray(moving, bool)
+    out = {"n_images": int(mv.sum()), "still_excluded": int((~mv).sum())}
+    for k in ("psnr", "ssim"):
+        v = np.asarray(per[k], np.float64)[mv]
+        out[k] = float(np.mean(v)) if v.size else None
+    return out
+
+
+def motion_only(per: Mapping[str, Sequence[float]], moving) -> dict[str, np.ndarray]:
+    """``per`` with ``psnr``/``ssim`` set to NaN where a sample has no motion, so that
+    :func:`group_means` and :func:`by_level` average image metrics over moving samples
+    (and restoration metrics over all)."""
+    mv = np.asarray(moving, bool)
+    return {k: (np.where(mv, np.asarray(v, np.float64), np.nan) if k in ("psnr", "ssim") else v)
+            for k, v in per.items()}
+
+
 def evaluate_images(preds, targets) -> dict:
     """Mean PSNR/SSIM of (N, C, H, W) predictions against targets, with the per-image
     values: ``{"psnr", "ssim", "n", "psnr_per_image", "ssim_per_image"}``."""
@@ -136,14 +173,18 @@ def level_edges(levels, bins: int = 5) -> np.ndarray:
 
 def group_means(values: Mapping[str, Sequence[float]], labels: Sequence) -> list[dict]:
     """Mean of every per-sample metric within each group label: a list of
-    ``{"group": label, "n": count, <metric>: mean}`` in sorted label order."""
+    ``{"group": label, "n": count, <metric>: mean}`` in sorted label order. NaN values
+    (image metrics of samples without motion, :func:`motion_only`) are left out of a
+    metric's mean; a metric with no value in the group is None."""
     labels = np.asarray(labels)
     out = []
     for g in sorted(set(labels.tolist()), key=lambda x: (str(type(x)), x)):
         sel = labels == g
         row = {"group": g, "n": int(sel.sum())}
         for k, v in values.items():
-            row[k] = float(np.mean(np.asarray(v, np.float64)[sel]))
+            x = np.asarray(v, np.float64)[sel]
+            x = x[~np.isnan(x)]
+            row[k] = float(np.mean(x)) if x.size else None
         out.append(row)
     return out
 

@@ -223,7 +223,9 @@ def evaluate_row(kind: str, checkpoint: str | Path | None, pairs_path: str | Pat
     file. Returns a JSON-able dict:
 
     ``method``, ``events``, ``checkpoint``, ``n``; ``psnr``, ``ssim`` (means of the
-    per-image values of :mod:`rdnet.eval.metrics`; absent for ``restore``);
+    per-image values of :mod:`rdnet.eval.metrics` over the ``n_images`` samples with
+    motion, :func:`~rdnet.eval.metrics.image_means`; ``still_excluded`` samples without
+    motion left out, in the breakdowns too; absent for ``restore``);
     ``by_level``: ``[{level_bin, level_lo, level_hi, n, psnr, ssim, ...}]`` over
     ``level_bins`` equal-width bins of ``/level`` (non-empty bins only);
     ``by_degradation``: the same grouped by :func:`~rdnet.eval.metrics.dominant_degradation`
@@ -242,6 +244,7 @@ def evaluate_row(kind: str, checkpoint: str | Path | None, pairs_path: str | Pat
         if "pred" in b:
             for k, v in M.image_metrics_per_sample(b["pred"], b["sharp"]).items():
                 per.setdefault(k, []).append(v)
+            per.setdefault("moving", []).append(M.has_motion(b["blurry"], b["sharp"]))
         if "restored" in b:
             for k, v in M.restoration_per_sample(b["restored"], b["voxel_undegraded"],
                                                  b["voxel_degraded"]).items():
@@ -250,14 +253,14 @@ def evaluate_row(kind: str, checkpoint: str | Path | None, pairs_path: str | Pat
                                                  b["voxel_degraded"]).items():
                 rest_in.setdefault(k, []).append(v)
     per_np = {k: np.concatenate(v) for k, v in per.items()}
-    metric_keys = [k for k in per_np if k not in ("index", "level")]
+    metric_keys = [k for k in per_np if k not in ("index", "level", "moving")]
     values = {k: per_np[k] for k in metric_keys}
     out: dict = {"method": kind, "events": None if kind in ("blurry", "image_only") else events,
                  "checkpoint": None if checkpoint is None else str(checkpoint),
                  "n": int(per_np["index"].size)}
-    if "psnr" in values:
-        out["psnr"] = float(np.mean(values["psnr"]))
-        out["ssim"] = float(np.mean(values["ssim"]))
+    if "psnr" in values:                        # over the samples with motion (rdnet.eval.metrics)
+        out.update(M.image_means(values, per_np["moving"]))
+        values = M.motion_only(values, per_np["moving"])
     if "voxel_l1" in values:
         out["restoration"] = {k: float(np.mean(values[k])) for k in
                               ("voxel_l1", "voxel_psnr", "voxel_l1_all")}

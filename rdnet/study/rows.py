@@ -214,16 +214,18 @@ def evaluate_edi(pairs_path: Path, events: str, level_bins: int) -> dict:
     from rdnet.baselines.edi import edi_from_voxel
     from rdnet.eval import metrics as M
     from rdnet.sim.blur import read_pairs
-    preds, sharp, levels = [], [], []
+    preds, sharp, blurry, levels = [], [], [], []
     with read_pairs(pairs_path) as pf:
         for i in tqdm(range(len(pf)), desc="edi", disable=None):
             s = pf[i]
             out, _ = edi_from_voxel(s["blurry"], s[f"voxel_{events}"])
-            preds.append(np.clip(out, 0, 1)); sharp.append(s["sharp"]); levels.append(float(s["level"]))
+            preds.append(np.clip(out, 0, 1)); sharp.append(s["sharp"]); blurry.append(s["blurry"])
+            levels.append(float(s["level"]))
     per = M.image_metrics_per_sample(np.stack(preds), np.stack(sharp))
-    return {"method": "edi", "events": events, "n": len(preds), "psnr": float(np.mean(per["psnr"])),
-            "ssim": float(np.mean(per["ssim"])), "by_level": M.by_level(per, np.array(levels), bins=level_bins),
-            "per_sample": {"level": levels, **{k: v.tolist() for k, v in per.items()}}}
+    moving = M.has_motion(np.stack(blurry), np.stack(sharp))
+    return {"method": "edi", "events": events, "n": len(preds), **M.image_means(per, moving),
+            "by_level": M.by_level(M.motion_only(per, moving), np.array(levels), bins=level_bins),
+            "per_sample": {"level": levels, **{k: v.tolist() for k, v in per.items()}, "moving": moving.tolist()}}
 
 
 def mean_over_seeds(results: list[dict]) -> dict:

@@ -89,3 +89,25 @@ def test_dominant_degradation_uses_relative_strength():
            "shot_noise_hz": [0.0, 2.0, 0.5, 0.0],
            "onoff_ratio": [1.0, 1.0, 1.0, 2.0]}
     assert dominant_degradation(deg).tolist() == ["none", "shot_noise_hz", "refractory_us", "onoff_ratio"]
+
+
+def test_samples_without_motion_are_left_out_of_the_image_means():
+    from rdnet.eval.metrics import has_motion, image_means, motion_only
+    rng = np.random.default_rng(3)
+    sharp = rng.integers(0, 250, (3, 1, 12, 12)) / 255     # exact grey levels
+    blurry = sharp.copy()
+    blurry[0] += 2 / 255                                  # moves by 2 grey levels
+    blurry[1, 0, 5, 5] += 1.0 / 255 + 1e-3                # one pixel moves by a grey level
+    blurry[2] += 0.1 / 255                                # below 8 bits: no motion
+    moving = has_motion(blurry, sharp)
+    assert moving.tolist() == [True, True, False]
+    per = {"psnr": np.array([30.0, 50.0, math.inf]), "ssim": np.array([0.9, 0.99, 1.0]),
+           "voxel_l1": np.array([1.0, 2.0, 3.0])}
+    m = image_means(per, moving)
+    assert m == {"n_images": 2, "still_excluded": 1, "psnr": 40.0, "ssim": pytest.approx(0.945)}
+    g = group_means(motion_only(per, moving), np.array([0, 1, 1]))
+    assert g[1]["psnr"] == 50.0 and g[1]["voxel_l1"] == 2.5 and g[1]["n"] == 2
+    assert group_means(motion_only(per, moving), np.array([0, 0, 1]))[1]["psnr"] is None
+    assert image_means(per, [False] * 3)["psnr"] is None
+    with pytest.raises(ValueError):
+        has_motion(blurry[:, 0], sharp[:, 0])

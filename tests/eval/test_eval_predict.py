@@ -88,3 +88,20 @@ def test_method_and_checkpoint_errors(setup, tmp_path):
     other_bins = write_synthetic_pairs(tmp_path / "b5.h5", n=2, channels=3, bins=5, height=16, width=16)
     with pytest.raises(FormatError, match="voxel bins"):
         evaluate_row("deblur", ckpts["deblur"], other_bins, device="cpu")
+
+
+def test_a_sample_without_motion_is_left_out_of_every_rows_image_means(tmp_path, setup):
+    _, ckpts, _ = setup
+    pairs = write_synthetic_pairs(tmp_path / "still.h5", n=4, channels=3, bins=3, height=20, width=24, seed=8)
+    with h5py.File(pairs, "r+") as f:
+        f["blurry"][1] = f["sharp"][1]                   # nothing moves in sample 1
+        a = {k: np.asarray(f[k]) for k in ("blurry", "sharp")}
+    keep = [0, 2, 3]
+    ref = evaluate_images(a["blurry"][keep], a["sharp"][keep])
+    for kind, ck in (("blurry", None), ("deblur", ckpts["deblur"])):
+        row = evaluate_row(kind, ck, pairs, batch_size=3, device="cpu")
+        assert row["n"] == 4 and row["n_images"] == 3 and row["still_excluded"] == 1
+        assert row["psnr"] == pytest.approx(ref["psnr"]) and np.isfinite(row["psnr"])
+        assert row["per_sample"]["moving"] == [True, False, True, True]
+        assert row["per_sample"]["psnr"][1] == np.inf    # the per-sample values keep it
+        assert sum(b["n"] for b in row["by_level"]) == 4
