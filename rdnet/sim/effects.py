@@ -26,14 +26,19 @@ Effects and the sources they follow:
   ``f(I) = f0 (I + floor) / (1 + floor)`` with ``floor`` = :data:`CUTOFF_FLOOR` (v2e's
   ``(I255 + 20) / 275``), so dark pixels are slower; discretised exactly for a step dt:
   ``lp <- lp + alpha (L - lp)``, ``alpha = 1 - exp(-2 pi f(I) dt)``.
-* ``refractory_us`` (v2e Sec. 3.4; DVS-Voltmeter, Lin et al., ECCV 2022): a pixel cannot
-  emit for ``refractory_us`` after an event. Crossings in the dead time are dropped, and
-  ``ref`` still moves by one threshold per dropped crossing (the pixel is held in reset,
-  its reference follows the input; Lichtsteiner 2008), so no burst follows the dead time.
+* ``refractory_us`` R (v2e Sec. 3.4; DVS-Voltmeter, Lin et al., ECCV 2022): after an event
+  at t_e the pixel is held in reset until t_e + R (Lichtsteiner 2008: the reset switch of
+  the differencing amplifier stays closed), so it emits nothing and its reference follows
+  the input: at the wake-up ``ref = S(t_e + R)`` exactly, and the next event needs a full
+  threshold of change from there. No burst follows the dead time, and the change during
+  it is lost entirely. On a ramp of slope k the intervals are R + theta / k. (Until
+  2026-11 the reference moved by whole thresholds during the dead time, keeping the
+  residual below one threshold: intervals were multiples of theta / k of at least R.)
 * ``sample_period_us`` P (limited readout bandwidth, RDNet paper Fig. 2b): the readout
   services each pixel at most once per period ``[m P, (m + 1) P)``; further crossings of
-  the pixel in the same period are lost (``ref`` moves as for refractory), so fast changes
-  lose events. Timestamps keep the crossing time.
+  the pixel in the same period are lost and ``ref`` moves by one threshold per lost
+  crossing (the pixel is not reset), so fast changes lose events, and two events can
+  sit either side of a period edge. Timestamps keep the crossing time.
 * ``shot_noise_hz`` R (v2e Sec. 3.5, ``generate_shot_noise``): Poisson noise events,
   balanced ON/OFF, rate per pixel ``R (1 + (b - 1) min(I, 1))`` with
   ``b = shot_noise_bright_factor`` (v2e ``SHOT_NOISE_INTEN_FACTOR`` = 0.25): R in the dark,

@@ -118,7 +118,9 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
       leak: acc += drift dt; S_k = lp + acc (= L_k when both are off);
       each crossing of ``ref +- theta`` by the segment S_{k-1} -> S_k: ref moves by one
       threshold, event time t_{k-1} + (ref - S_{k-1}) / (S_k - S_{k-1}) dt, emitted unless
-      within ``refractory`` of the last event or in the readout period of the last event;
+      in the readout period of the last event (then lost, ref moved); after an event at
+      t_e the pixel is held in reset until t_e + ``refractory``: ref follows S (linear
+      within a step) and the first crossing after the wake is measured from S there;
       shot noise (if ``use_shot``): ``lam += (shot_a + shot_b min(I_k, 1)) dt``, the
       hazard integral of the chunk (``lin`` = I, clipped at 0 by the caller).
     Loops: rows in parallel, then steps, then pixels (a branch-free pass over the row that
@@ -128,6 +130,7 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
     """
     K, H, W = logf.shape
     use_period = period > 0.0
+    use_reset = refractory > 0.0
     for y in prange(H):
         base = y * cap
         n = 0
@@ -172,6 +175,22 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                     nbad += b
                     _advance(y, x, s1, s_prev, s0row, ref, thr_on, thr_off, crs)
             isbad |= nbad > 0
+            if use_reset:
+                # pixels held in reset during this step (an event less than ``refractory``
+                # ago): the reference follows S until the pixel wakes (all step: ref = S_k;
+                # waking inside the step: ref = S at the wake time, then it may cross)
+                for x in range(W):
+                    wake = last_t[y, x] + refractory
+                    if wake > tp:
+                        s1 = s_prev[y, x]
+                        if wake >= t1:
+                            ref[y, x] = s1
+                            crs[x] = 0
+                        else:
+                            s0 = s0row[x]
+                            r = s0 + (s1 - s0) * ((wake - tp) / dt)
+                            ref[y, x] = r
+                            crs[x] = (s1 - r >= thr_on[y, x] - CROSSING_TOL) | (r - s1 >= thr_off[y, x] - CROSSING_TOL)
             # the pixels that cross (few: 8 flags are tested at once)
             m = 0
             for w8 in range(nw):
@@ -222,6 +241,12 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                         out_x[base + n] = x
                         out_p[base + n] = pol
                     n += 1
+                    if use_reset:           # held in reset: ref follows S until te + refractory
+                        wake = te + refractory
+                        if wake >= t1:
+                            r = s1
+                            break
+                        r = s0 + ds * ((wake - tp) / dt)
                 ref[y, x] = r
                 last_t[y, x] = lt
                 last_bin[y, x] = lb

@@ -98,6 +98,23 @@ def test_refractory_period():
     assert 0 < len(ev) < len(ideal) and ev.p.all()
 
 
+def test_refractory_reset_holds_the_reference_at_the_input():
+    # a ramp of one threshold (0.2) per 250 us: held in reset for R after each event, the
+    # pixel re-references to the input at the wake-up and fires one threshold later, so
+    # every interval is R + 250 us (a reference moved by whole thresholds would give 750)
+    L, t = fast_ramp(h=2, w=3, n_thr=40, steps=40, dt=250)
+    ev, _ = run(L, t, DegradeConfig(refractory_us=700), log=True)
+    gaps = _per_pixel_gaps(ev)
+    assert gaps.size >= 6 * 8 and np.abs(gaps - 950).max() <= 1
+    # the wake-up inside a frame step and across steps: longer steps, same answer
+    L2, t2 = fast_ramp(h=2, w=3, n_thr=40, steps=10, dt=1000)
+    gaps2 = _per_pixel_gaps(run(L2, t2, DegradeConfig(refractory_us=700), log=True)[0])
+    assert np.abs(gaps2 - 950).max() <= 1
+    # a reference held through a whole step: R longer than the step
+    gaps3 = _per_pixel_gaps(run(L, t, DegradeConfig(refractory_us=1600), log=True)[0])
+    assert np.abs(gaps3 - 1850).max() <= 1
+
+
 def test_sample_period_limits_one_event_per_period():
     P = 800
     L, t = fast_ramp()
