@@ -13,7 +13,8 @@ def main(args, params):
     cfg = section(params, "ablation")
     seeds = section(params, "study").seeds
     res = evaluate_ablation_row(cfg, args.row, args.pairs, args.events_dir, seeds=seeds)
-    compact = {k: res[k] for k in ("psnr", "psnr_std", "ssim", "ssim_std", "n", "paper_psnr")
+    compact = {k: res[k] for k in ("psnr", "psnr_std", "ssim", "ssim_std", "n", "n_images", "still_excluded",
+                                   "paper_psnr")
                if res.get(k) is not None}
     compact["n_seeds"] = len(res["seeds"])
     _common.write_json(args.out, compact)

@@ -178,6 +178,20 @@ class DeblurNet(nn.Module):
         return self.net.source_features(voxel)
 
 
+class EventEncoder(nn.Module):
+    """F of the restoration loss as a module of its own: ``deblur.event_features`` (it
+    shares the DeblurNet's weights; parameter names ``deblur.<name>``), so that
+    ``torch.func.functional_call`` can run F with detached weights: the fixed perceptual
+    encoder of ``train.feature_grad: false``."""
+
+    def __init__(self, deblur: "DeblurNet"):
+        super().__init__()
+        self.deblur = deblur
+
+    def forward(self, voxel: torch.Tensor) -> list[torch.Tensor]:
+        return self.deblur.event_features(voxel)
+
+
 #: what RDNet's stage 2 reads: the restored voxel (the paper) or restored and raw ("dual").
 STAGE2_INPUTS = ("restored", "dual")
 

@@ -40,6 +40,12 @@ class TrainConfig:
     ``stage2_input`` (task rdnet): stage 2 reads the ``restored`` voxel (the paper) or
     ``dual``: the restored and the raw voxels concatenated (it cannot lose what the raw
     events hold; :class:`rdnet.nn.models.RDNet`).
+    ``feature_grad`` (task rdnet): whether the feature term of L_er also trains stage 2's
+    event encoder F. False (default): F is a fixed perceptual encoder inside that term (its
+    weights detached there; the deblurring loss still trains them), so the term trains
+    stage 1 only. True: F's weights get the term's gradient too; its target F(E_u) is
+    detached, so F chases a moving target, and in the study that term grew from about
+    0.07 to 1-24,000 in 7 of 9 RDNet trainings (README, "Investigation of the RDNet row").
     ``finetune_restore``: stage 2 also updates the stage-1 weights, at
     ``lr * restore_lr_scale``; false freezes them.
     ``seed``: model init, data order, crops; ``device``: cpu, cuda or auto (cuda when
@@ -66,6 +72,7 @@ class TrainConfig:
     occupancy_weight: float = 1.0
     val_sequences: int = 0
     stage2_input: Literal["restored", "dual"] = "restored"
+    feature_grad: bool = False
     finetune_restore: bool = True
     restore_lr_scale: float = 1.0
     seed: int = 0

@@ -51,6 +51,7 @@ from torch.utils.data import DataLoader
 
 from rdnet.config import to_dict
 from rdnet.errors import ConfigError, FormatError
+from rdnet.nn.models import EventEncoder
 from rdnet.train import checkpoint as ckpt_mod
 from rdnet.train.config import ModelConfig, TrainConfig
 from rdnet.train.data import PairsDataset, StepSampler, read_pairs_voxel, split_rows
@@ -134,8 +135,15 @@ def compute_loss(task: str, model: nn.Module, batch: Mapping[str, torch.Tensor],
         inp = batch["counts_degraded" if counts else "voxel_degraded"]
         restored, pred = model(blurry, inp)
         ld = deblur_loss(pred, batch["sharp"])
-        # F of Eq. 9 is stage 2's event encoder on what stage 2 reads (with the raw voxel when dual)
-        features = lambda v: net.deblur.event_features(net.stage2_events(v, inp))  # noqa: E731
+        # F of Eq. 9 is stage 2's event encoder on what stage 2 reads (with the raw voxel when dual);
+        # a fixed encoder inside this term unless train.feature_grad
+        encoder = EventEncoder(net.deblur)
+        if cfg.feature_grad:
+            features = lambda v: encoder(net.stage2_events(v, inp))  # noqa: E731
+        else:
+            fixed = {f"deblur.{k}": w.detach() for k, w in net.deblur.named_parameters()}
+            features = lambda v: torch.func.functional_call(  # noqa: E731
+                encoder, fixed, (net.stage2_events(v, inp),))
         lr = restoration_loss(restored, batch["voxel_undegraded"], batch["voxel_degraded"],
                               alpha=cfg.stage2_alpha, feature_fn=features,
                               beta=cfg.beta, empty_weight=cfg.empty_weight)

@@ -56,6 +56,30 @@ def test_one_step_lowers_the_loss_on_a_fixed_batch(pairs, task):
         assert parts["loss_restore"].item() > 0  # the feature term is active
 
 
+@pytest.mark.parametrize("feature_grad", [False, True])
+def test_the_feature_term_trains_stage_2s_encoder_only_with_feature_grad(pairs, feature_grad):
+    from rdnet.nn.losses import deblur_loss
+    ds = PairsDataset(pairs, crop=16, augment=False)
+    batch = {k: torch.stack([ds[i][k] for i in range(4)]) for k in ds[0]}
+    net = build_seeded(model_args("rdnet", TINY, 1, 3), seed=0)
+    g = torch.Generator().manual_seed(1)
+    with torch.no_grad():
+        for p in net.parameters():
+            p.add_(torch.randn(p.shape, generator=g) * 1e-2)
+    cfg = TrainConfig(device="cpu", feature_grad=feature_grad, beta=0.5, stage2_alpha=0.0)
+    loss, parts = compute_loss("rdnet", net, batch, cfg)
+    assert parts["loss_restore"].item() > 0
+    loss.backward()
+    total = {k: p.grad.clone() for k, p in net.deblur.named_parameters() if p.grad is not None}
+    net.zero_grad()
+    _, pred = net(batch["blurry"], batch["voxel_degraded"])     # the signed stage 1 (cfg default)
+    deblur_loss(pred, batch["sharp"]).backward()        # the deblurring term alone
+    alone = {k: p.grad.clone() for k, p in net.deblur.named_parameters() if p.grad is not None}
+    assert total.keys() == alone.keys()
+    same = all(torch.allclose(total[k], alone[k], atol=1e-7) for k in total)
+    assert same is (not feature_grad)                  # the feature term reaches F only when asked
+
+
 def test_stop_and_resume_in_a_new_process_equals_uninterrupted(pairs, tmp_path):
     straight = train("deblur", CFG, TINY, pairs, tmp_path / "a", progress=False)
     part = train("deblur", CFG, TINY, pairs, tmp_path / "b", progress=False, stop_after=2)
