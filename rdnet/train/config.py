@@ -44,8 +44,9 @@ class TrainConfig:
     event encoder F. False (default): F is a fixed perceptual encoder inside that term (its
     weights detached there; the deblurring loss still trains them), so the term trains
     stage 1 only. True: F's weights get the term's gradient too; its target F(E_u) is
-    detached, so F chases a moving target, and in the study that term grew from about
-    0.07 to 1-24,000 in 7 of 9 RDNet trainings (README, "Investigation of the RDNet row").
+    detached, so F chases a moving target: in the study that term grew from about 0.07
+    to 1.0-23,800 in 6 of 9 RDNet trainings and to 0.1-0.2 in the other 3 (README,
+    "Investigation of the RDNet row").
     ``finetune_restore``: stage 2 also updates the stage-1 weights, at
     ``lr * restore_lr_scale``; false freezes them.
     ``seed``: model init, data order, crops; ``device``: cpu, cuda or auto (cuda when
