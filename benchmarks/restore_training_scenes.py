@@ -64,9 +64,9 @@ def score_real(path: Path, name: str, params: dict, runs: dict[str, tuple[str, P
     """``runs``: label -> (method, checkpoint), scored as ``restore_real`` scores them
     (:func:`rdnet.restore.real.score_recording`): events kept, activity / background kept,
     ESR and, with frames, the consistency R^2."""
-    from rdnet.restore.real import Run, score_recording
+    from rdnet.restore.real import Run, read_facts, score_recording
     sc = score_recording(name, path, params, [Run(k, m, ck) for k, (m, ck) in runs.items()], work / name,
-                         keep=False)
+                         keep=False, facts=read_facts(ROOT / "stages" / "real_recordings.yaml"))
     out = {"events": sc.entry["events"], "methods": {}}
     for label, m in sc.entry["methods"].items():
         out["methods"][label] = {"events_out": m["events_out"], "kept_fraction": m["kept_fraction"],

@@ -6,7 +6,7 @@ are skipped with a warning), scored without ground truth (params: restore, senso
 Per recording and method: events kept, ESR (E-MLB), event-frame consistency (with
 frames), and region fractions -- the share of the raw events kept inside the *activity
 mask* (where the scene moves), outside it (background activity), and on the known hot
-pixels (rdnet.restore.real.HOT_PIXELS, from ../shared/real/README.md). The activity mask is derived
+pixels (--facts, stages/real_recordings.yaml, from ../shared/real/README.md). The activity mask is derived
 from each recording's raw events by one fixed rule, the same for every recording
 (rdnet.eval.noref.activity_mask): the per-pixel event count, 3 x 3 median-filtered (lone hot
 pixels vanish), Gaussian-smoothed with sigma 4 px, above 0.25 x its 99.9th percentile. Writes OUT/summary.json, OUT/summary.md
@@ -17,10 +17,10 @@ from pathlib import Path
 
 import _common
 from rdnet.eval.noref import ACTIVITY_MASK as MASK  # after _common: it puts the repo on sys.path
-from rdnet.restore.real import HOT_PIXELS, Run, recordings, score_recording
+from rdnet.restore.real import Run, read_facts, recordings, score_recording
 
 METHODS = ("raw", "baf", "stcf", "gef", "rdnet", "ednccn")
-#: Extra rows on the recordings with known hot pixels (rdnet.restore.real.HOT_PIXELS): the
+#: Extra rows on the recordings with known hot pixels (--facts): the
 #: learned restorer without the hot-pixel pass shows what the network removes by itself.
 VARIANTS = (Run("rdnet_no_hot_pass", "rdnet", restore={"hot_pixel_factor": 0}, suffix=" (no hot-pixel pass)"),)
 
@@ -72,6 +72,7 @@ def main(args, params):
     log = logging.getLogger("restore_real")
     summary = {"recordings": {}, "skipped": {}, "activity_mask": dict(MASK),
                "note": "fractions are of the raw events inside each mask; activity mask derived from raw events"}
+    facts = read_facts(args.facts)
     for name, path in recordings([args.data, args.shared]):
         try:
             format_of(path)
@@ -82,8 +83,8 @@ def main(args, params):
         if args.only and name not in args.only:
             continue
         log.info("restoring %s (%s)", name, path)
-        runs = [Run(m, m) for m in METHODS] + (list(VARIANTS) if name in HOT_PIXELS else [])
-        sc = score_recording(name, path, params, runs, args.data_out / name)
+        runs = [Run(m, m) for m in METHODS] + (list(VARIANTS) if name in facts.hot_pixels else [])
+        sc = score_recording(name, path, params, runs, args.data_out / name, facts=facts)
         summary["recordings"][name] = sc.entry
         figure(args.out / f"{name}.png", name, sc.raw, sc.outs, sc.activity)
     _common.write_json(args.out / "summary.json", summary)
@@ -94,6 +95,8 @@ p = _common.parser(__doc__)
 p.add_argument("--data", type=Path, default=Path("data/real"))
 p.add_argument("--shared", type=Path, default=Path("../shared/real"),
                help="more real recordings when present (not shipped: copyleft)")
+p.add_argument("--facts", type=Path, default=Path("stages/real_recordings.yaml"),
+               help="known hot pixels and sensor sizes of the recordings (rdnet.restore.real.read_facts)")
 p.add_argument("--out", type=Path, default=Path("results/restore_real"))
 p.add_argument("--data-out", type=Path, default=Path("data/restore_real"))
 p.add_argument("--only", nargs="*", default=None, help="restrict to these recording folder names")

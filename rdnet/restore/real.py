@@ -17,10 +17,6 @@ from typing import Iterable, Mapping, Sequence
 
 log = logging.getLogger(__name__)
 
-#: (x, y) hot pixels listed in ../shared/real/README.md, per recording folder name.
-HOT_PIXELS = {"dvxplorer_person": [(187, 105), (204, 157), (241, 196), (307, 97)]}
-#: (width, height) of recordings whose format does not store it (README: DAVIS240C).
-SENSOR_SIZE = {"ecd_shapes_subset": (240, 180)}
 #: file suffixes of a recording folder that are not recordings
 SKIP = {".md", ".png", ".jpg", ".json", ".yaml", ".dvc"}
 
@@ -38,6 +34,46 @@ def recordings(roots: Iterable[Path | None]) -> list[tuple[str, Path]]:
                 seen.add(d.name)
                 out.append((d.name, files[0]))
     return out
+
+
+@dataclass(frozen=True)
+class RecordingFacts:
+    """What the events alone do not say about some recordings, per recording folder name:
+    known hot pixels ((x, y) lists) and sensor sizes ((width, height)) for formats that do not
+    store one. The study keeps them beside its stage (``stages/real_recordings.yaml``)."""
+
+    hot_pixels: Mapping[str, list] = field(default_factory=dict)
+    sensor_size: Mapping[str, tuple] = field(default_factory=dict)
+
+
+def read_facts(path: str | Path) -> RecordingFacts:
+    """:class:`RecordingFacts` from a YAML file with the keys ``hot_pixels`` and
+    ``sensor_size`` (both optional); a ConfigError naming the file and the field otherwise."""
+    import yaml
+
+    from rdnet.errors import ConfigError
+    path = Path(path)
+    try:
+        raw = yaml.safe_load(path.read_text()) or {}
+    except (OSError, yaml.YAMLError) as e:
+        raise ConfigError("facts", f"{path}: cannot read: {e}") from None
+    if not isinstance(raw, dict) or set(raw) - {"hot_pixels", "sensor_size"}:
+        raise ConfigError("facts", f"{path}: expected a mapping with hot_pixels and sensor_size, got {raw!r}")
+
+    def pairs(key, one):
+        out = {}
+        for name, v in (raw.get(key) or {}).items():
+            try:
+                out[str(name)] = one(v)
+            except (TypeError, ValueError):
+                raise ConfigError(f"facts.{key}.{name}", f"{path}: bad value {v!r}") from None
+        return out
+
+    def xy(v):
+        x, y = v
+        return int(x), int(y)
+    return RecordingFacts(hot_pixels=pairs("hot_pixels", lambda v: [xy(p) for p in v]),
+                          sensor_size=pairs("sensor_size", xy))
 
 
 @dataclass(frozen=True)
@@ -64,21 +100,23 @@ class Scored:
 
 
 def score_recording(name: str, path: Path, params: Mapping, runs: Sequence[Run], out_dir: Path, *,
-                    keep: bool = True) -> Scored:
+                    keep: bool = True, facts: RecordingFacts | None = None) -> Scored:
     """Run every ``runs`` entry of ``rdnet restore`` on ``path`` (``out_dir/<key>.h5`` and
     ``<key>.summary.json``, the OUT.json; removed again unless ``keep``) and score it. A learned
-    run whose model is absent is skipped with a warning (a broken one raises)."""
+    run whose model is absent is skipped with a warning (a broken one raises). ``facts``: the
+    known hot pixels and sensor size of recording ``name``, if any."""
     from rdnet.errors import ModelNotFoundError
     from rdnet.eval.noref import ACTIVITY_MASK, activity_mask, mask_fractions, pixel_mask
     from rdnet.events.io import load
     from rdnet.restore.run import json_path_for, restore_recording
 
-    size = SENSOR_SIZE.get(name)
+    facts = facts or RecordingFacts()
+    size = facts.sensor_size.get(name)
     rec = load(path, sensor_size=size)
     raw = rec.require_events(str(path))
     act = activity_mask(raw, **ACTIVITY_MASK)
     masks = {"activity": act, "background": ~act}
-    hot = HOT_PIXELS.get(name)
+    hot = facts.hot_pixels.get(name)
     if hot:
         masks["hot_pixels"] = pixel_mask(rec.width, rec.height, hot)
     entry = {"path": str(path), "width": rec.width, "height": rec.height,

@@ -33,3 +33,32 @@ def test_score_recording_raw_keeps_everything_and_baf_drops_isolated_noise(tmp_p
     assert len(kept.outs["baf"]) == baf["events_out"]
     assert sorted(p.name for p in (tmp_path / "kept").iterdir()) == [
         "baf.h5", "baf.json", "baf.summary.json", "raw.h5", "raw.json", "raw.summary.json"]
+
+
+def test_read_facts_gives_hot_pixels_and_sizes_and_names_a_bad_field(tmp_path):
+    import pytest
+
+    from rdnet.errors import ConfigError
+    from rdnet.restore.real import read_facts
+    f = tmp_path / "facts.yaml"
+    f.write_text("hot_pixels:\n  cam: [[1, 2], [3, 4]]\nsensor_size:\n  txt: [240, 180]\n")
+    facts = read_facts(f)
+    assert facts.hot_pixels == {"cam": [(1, 2), (3, 4)]} and facts.sensor_size == {"txt": (240, 180)}
+    f.write_text("sensor_size:\n  txt: [240]\n")
+    with pytest.raises(ConfigError, match="facts.sensor_size.txt"):
+        read_facts(f)
+    f.write_text("hot_pixel: {}\n")
+    with pytest.raises(ConfigError, match="facts.yaml"):
+        read_facts(f)
+
+
+def test_score_recording_scores_the_known_hot_pixels_it_is_given(tmp_path):
+    from rdnet.restore.real import RecordingFacts
+    edge, _ = edge_noise_hot(seed=3)
+    path = tmp_path / "x" / "x.h5"
+    path.parent.mkdir(parents=True)
+    write_recording(path, Recording(edge.width, edge.height, events=edge, sensor="SYN"))
+    hot = [(int(edge.x[0]), int(edge.y[0]))]
+    sc = score_recording("x", path, {}, [Run("raw", "raw")], tmp_path / "out", keep=False,
+                         facts=RecordingFacts(hot_pixels={"x": hot}))
+    assert sc.entry["hot_pixels"] == hot and sc.entry["methods"]["raw"]["regions"]["hot_pixels"] == 1.0
