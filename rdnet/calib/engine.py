@@ -3,15 +3,16 @@
 additive noise and timestamp effects of :mod:`rdnet.sim.effects`, and summarised
 directly into the statistics of :mod:`rdnet.calib.stats`.
 
-The search evaluates hundreds of parameter sets on the same frames, and most of the
-vocabulary does not change what the pixel circuit emits: shot noise and hot pixels add
-events, jitter and latency move them. :class:`Engine` therefore splits a config in two:
+The search evaluates hundreds of parameter sets on the same frames, and part of the
+vocabulary does not change what the pixel circuit emits: hot pixels add events, jitter
+and latency move them. :class:`Engine` therefore splits a config in two:
 
 * the **kernel** part (thresholds, mismatch, ON/OFF ratio, bandwidth, refractory period,
-  readout period, leak): simulated by ``Sensor`` from log frames computed once per
-  context, and cached per (kernel config, seed) (a small LRU);
-* the **additive** part (shot noise, hot pixels, jitter, latency): drawn on top of the
-  cached kernel events with the simulator's own functions (:func:`effects.poisson_events`,
+  readout period, leak, shot noise, whose events reset the pixel): simulated by
+  ``Sensor`` from log frames computed once per context, and cached per (kernel config,
+  seed) (a small LRU);
+* the **additive** part (hot pixels, jitter, latency): drawn on top of the cached kernel
+  events with the simulator's own functions (:func:`effects.poisson_events`,
   :func:`effects.hot_pixels`, :func:`rdnet.sim.sensor.apply_timing`), exactly as
   ``Sensor.step`` composes them for a single chunk.
 
@@ -35,10 +36,10 @@ from rdnet.sim.sensor import Sensor, apply_timing, sort_events
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
 #: degrade keys that act on the events after the pixel circuit (composed by the engine)
-ADDITIVE_KEYS = ("shot_noise_hz", "shot_noise_bright_factor", "hot_pixel_fraction", "hot_pixel_hz",
-                 "jitter_us", "latency_us")
+ADDITIVE_KEYS = ("hot_pixel_fraction", "hot_pixel_hz", "jitter_us", "latency_us")
 #: stream ids of the per-component random generators (np.random.default_rng([seed, id]))
-_KERNEL, _SHOT, _HOT, _TIMING, _REFERENCE = 0, 1, 2, 3, 4
+#: (1 was the additive shot noise's until shot-noise events reset the pixel, 2026-11)
+_KERNEL, _HOT, _TIMING, _REFERENCE = 0, 2, 3, 4
 
 
 def randomize_reference(sensor: Sensor, degrade: DegradeConfig, u: np.ndarray) -> None:
@@ -68,7 +69,7 @@ def simulate_random_start(images: np.ndarray, t_us: np.ndarray, sensor: SensorCo
 
 
 def _kernel_degrade(degrade: DegradeConfig) -> DegradeConfig:
-    off = {k: 0.0 for k in ADDITIVE_KEYS if k != "shot_noise_bright_factor"}
+    off = {k: 0.0 for k in ADDITIVE_KEYS}
     return dataclasses.replace(degrade, **off)
 
 
@@ -94,7 +95,6 @@ class Engine:
         self.lin = np.ascontiguousarray(ctx.sim_images, dtype=np.float32)
         self.t = np.ascontiguousarray(ctx.sim_t, dtype=np.int64)
         self._log = None
-        self._shot_int = None
         self._cache: OrderedDict = OrderedDict()
         self.cache_size = int(cache_size)
         self.n_kernel = 0          # Sensor runs
@@ -108,17 +108,6 @@ class Engine:
             np.log(lf, out=lf)
             self._log = (log_eps, lf)
         return self._log[1]
-
-    def shot_integral(self) -> np.ndarray:
-        """(H, W) sum over the steps of clip(I_k, 0, 1) dt_k (us): the intensity-dependent
-        part of the shot-noise hazard (computed as in ``Sensor.step``)."""
-        if self._shot_int is None:
-            dt = np.diff(self.t).astype(np.float64)
-            acc = np.zeros(self.lin.shape[1:])
-            for k in range(1, self.lin.shape[0]):
-                acc += np.clip(self.lin[k], 0.0, 1.0) * dt[k - 1]
-            self._shot_int = acc
-        return self._shot_int
 
     # --- simulation ---------------------------------------------------------------------------
     def reference_phase(self, seed: int) -> np.ndarray:
@@ -175,10 +164,6 @@ class Engine:
         t0, t1 = int(self.t[0]), int(self.t[-1])
         h, w = self.lin.shape[1:]
         parts = [arr]
-        if d.shot_noise_hz > 0:
-            a, b = effects.shot_rate_coefs(d)
-            lam = a * float(t1 - t0) + b * self.shot_integral()
-            parts.append(effects.poisson_events(lam.ravel(), None, t0, t1, w, np.random.default_rng([seed, _SHOT])))
         if d.hot_pixel_fraction > 0 and d.hot_pixel_hz > 0:
             rng = np.random.default_rng([seed, _HOT])
             idx, pol = effects.hot_pixels(h, w, d, rng)

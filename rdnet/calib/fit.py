@@ -421,13 +421,16 @@ def fit_basic(obj: Objective, fine: Objective | None = None) -> tuple[dict, floa
     outer = [p for p in params if additive(p)]
     if inner:
         v = refine(obj, v, inner, rounds=2, steps=cfg.refine_steps, factor=4.0)
+    for e in present_effects(obj.degrade):
+        if e.name != "shot_noise":
+            continue
+        o = fine if additive(e.params[0]) else obj
+        g = _guess(o, v, e)
+        if g is not None:   # the guess is an excess over the current rate
+            p = e.params[0]
+            g[p.key] = float(np.clip(v[p.key] + g[p.key], p.lo, p.hi))
+            v = g if o(g).fit_mean < o(v).fit_mean else v
     if outer:
-        for e in present_effects(obj.degrade):
-            g = _guess(fine, v, e) if e.name == "shot_noise" else None
-            if g is not None:   # the guess is an excess over the current rate
-                p = e.params[0]
-                g[p.key] = float(np.clip(v[p.key] + g[p.key], p.lo, p.hi))
-                v = g if fine(g).fit_mean < fine(v).fit_mean else v
         v = refine(fine, v, outer, rounds=2, steps=cfg.refine_steps, factor=4.0)
     return refine(fine, v, [THRESHOLD_SCALE] + params, rounds=1, steps=cfg.refine_steps - 1, factor=1.25), beta
 

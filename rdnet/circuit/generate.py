@@ -91,10 +91,9 @@ class CircuitParams:
 
 #: CircuitParams fields that carry the same name and meaning as an rdnet ``degrade`` key
 #: (so fitted values compare with the truth), and where the meaning differs:
-#: ``refractory_us``  here the pixel is held in reset and re-references at wake-up; in
-#:     rdnet the reference moves by one threshold per dropped crossing (close, not equal).
+#: ``refractory_us``  same meaning: the pixel is held in reset and re-references at wake-up.
 #: ``shot_noise_hz``  both: the dark rate; rdnet's falls linearly to 0.25x at I = 1, this
-#:     one as 1 / (1 + I / 0.1) (0.09x at I = 1), and here noise events reset the pixel.
+#:     one as 1 / (1 + I / 0.1) (0.09x at I = 1); in both, noise events reset the pixel.
 #: ``leak_hz``  same drift model in both (ON events of a static pixel at that mean rate).
 #: ``hot_pixel_*``  rdnet: Poisson events of a fixed random polarity; here: periodic ON
 #:     events from a large leak.

@@ -42,9 +42,15 @@ Effects and the sources they follow:
 * ``shot_noise_hz`` R (v2e Sec. 3.5, ``generate_shot_noise``): Poisson noise events,
   balanced ON/OFF, rate per pixel ``R (1 + (b - 1) min(I, 1))`` with
   ``b = shot_noise_bright_factor`` (v2e ``SHOT_NOISE_INTEN_FACTOR`` = 0.25): R in the dark,
-  ``b R`` at full intensity. Counts per pixel per chunk are Poisson with the integral of
-  the rate over the chunk; times are uniform in the chunk. Noise events are added to the
-  output and do not move the reference.
+  ``b R`` at full intensity (constant within a frame step). A noise event is a comparator
+  firing (Lichtsteiner 2008; DVS-Voltmeter, Lin et al., ECCV 2022): it is simulated in the
+  pixel kernel of :mod:`rdnet.sim.sensor`, is lost in the refractory or readout period of
+  the pixel's last event like any other, and when emitted it **resets** the pixel: the
+  reference takes the current log intensity (then the refractory hold). So shot noise
+  restarts the leak's accumulation (leak events become rarer under noise: a static pixel
+  with leak rate l and noise rate R leaks only when no noise event came for 1 / l) and
+  clears the residual of a moving pixel. (Until 2026-11 noise events were added to the
+  output and did not touch the reference.)
 * ``leak_hz`` (v2e Sec. 3.5, leak events; Nozaki & Delbruck, IEEE TED 2017): junction
   leakage makes the reference drift down, ``d ref / dt = -leak_rate(x, y) theta_on(x, y)``,
   so a static pixel emits ON events at ``leak_rate``; per-pixel rates are log-normal,

@@ -22,18 +22,20 @@ bounded memory. Per chunk:
 1. numpy (SIMD) computes ``log(I + eps)`` and the low-pass decay ``exp(-2 pi f(I) dt)``
    into buffers reused from chunk to chunk;
 2. one fused numba kernel, parallel over rows, advances every pixel (low-pass, leak,
-   thresholds, refractory, readout period, and the shot-noise hazard integral) and writes
-   its events to per-row buffers;
-3. the ideal sensor gathers them with a stable sort per step (:func:`_gather_sorted`);
-   with noise or timing effects, the Poisson noise events of :mod:`rdnet.sim.effects`
+   thresholds, refractory, readout period, and shot noise, whose events reset the pixel
+   like any comparator firing) and writes its events to per-row buffers;
+3. without hot pixels or timing effects the events are gathered with a stable sort per
+   step (:func:`_gather_sorted`); otherwise the hot-pixel events of :mod:`rdnet.sim.effects`
    (one Poisson count per pixel per chunk) and the events held back from the previous
    chunk are merged in one fused pass (:func:`_assemble`) that draws each event's
    jitter/latency shift (one uniform per event through an alias table of the exact
    shift distribution) and counting-sorts everything by time.
 
-Random numbers come only from the numpy Generator passed in, drawn in a fixed order, and
-the parallel loops work on a fixed partition of the data, so the same seed and chunking
-give bit-identical events whatever the number of threads. The kernels release the GIL, so
+Random numbers come only from the numpy Generator passed in, drawn in a fixed order
+(shot noise: a counter-based stream per pixel, :func:`_noise_draw`, keyed by one draw of
+the Generator), and the parallel loops work on a fixed partition of the data, so the same
+seed gives bit-identical events whatever the number of threads (and, without hot pixels
+and jitter, whatever the chunking). The kernels release the GIL, so
 other Python threads run meanwhile (the calibration upsamples frames in one).
 """
 from __future__ import annotations
@@ -97,6 +99,38 @@ def _advance(y, x, s1, s_prev, s0row, ref, thr_on, thr_off, crs):
     crs[x] = (s1 - r >= thr_on[y, x] - CROSSING_TOL) | (r - s1 >= thr_off[y, x] - CROSSING_TOL)
 
 
+_U64 = np.uint64
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+
+
+@njit(cache=True, inline="always")
+def _mix64(z):
+    """splitmix64 finaliser (Steele, Lea, Flood, OOPSLA 2014): a bijection of uint64 whose
+    outputs pass BigCrush for consecutive inputs."""
+    z = (z ^ (z >> _U64(30))) * _U64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> _U64(27))) * _U64(0x94D049BB133111EB)
+    return z ^ (z >> _U64(31))
+
+
+@njit(cache=True, inline="always")
+def _noise_draw(key, pix, ctr):
+    """Draw number ``ctr`` of pixel ``pix`` of the shot-noise stream ``key`` (counter-based,
+    so the draws do not depend on threads or chunking): (Exp(1) variate, polarity bit)."""
+    z = _mix64(key + _GOLDEN * _mix64((_U64(pix) << _U64(32)) + _U64(ctr)))
+    u = (float(z >> _U64(11)) + 1.0) * (1.0 / 9007199254740992.0)     # (0, 1]
+    return -math.log(u), np.uint8(z & _U64(1))
+
+
+@njit(cache=True)
+def _init_hazard(hz, ctr, key):
+    """First noise hazard target (Exp(1)) of every pixel; counters to 1."""
+    H, W = hz.shape
+    for y in range(H):
+        for x in range(W):
+            hz[y, x] = _noise_draw(key, y * W + x, np.int64(0))[0]
+            ctr[y, x] = 1
+
+
 @njit(cache=True, inline="always")
 def _lowpass(lp, decay, k, y, x, s1):
     """One low-pass step of pixel (y, x) towards ``s1`` (step k); returns the new state."""
@@ -108,7 +142,7 @@ def _lowpass(lp, decay, k, y, x, s1):
 
 @njit(parallel=True, cache=True, nogil=True)
 def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, t_us, t_prev,
-                  s_prev, lp, acc, ref, last_t, last_bin, lam,
+                  s_prev, lp, acc, ref, last_t, last_bin, hz, nctr, key,
                   thr_on, thr_off, drift, refractory, period,
                   out_t, out_x, out_p, seg, counts, bad, cap):
     """Advance every pixel over the K steps of ``logf`` (K, H, W) log intensity.
@@ -121,8 +155,13 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
       in the readout period of the last event (then lost, ref moved); after an event at
       t_e the pixel is held in reset until t_e + ``refractory``: ref follows S (linear
       within a step) and the first crossing after the wake is measured from S there;
-      shot noise (if ``use_shot``): ``lam += (shot_a + shot_b min(I_k, 1)) dt``, the
-      hazard integral of the chunk (``lin`` = I, clipped at 0 by the caller).
+      shot noise (if ``use_shot``): rate ``shot_a + shot_b min(I_k, 1)`` (per us; ``lin`` =
+      I, clipped at 0 by the caller), constant within a step; ``hz`` is the hazard left to
+      the pixel's next noise event (an Exp(1) target, :func:`_noise_draw` number ``nctr``
+      of stream ``key``). A noise event is a comparator firing: it has a random polarity,
+      is lost in the refractory/readout period of the last event like any other, and when
+      emitted it resets the pixel (``ref = S`` at its time; then the refractory hold).
+      Noise events and threshold crossings of a pixel are taken in time order.
     Loops: rows in parallel, then steps, then pixels (a branch-free pass over the row that
     vectorises, then the pixels that cross), so each row buffer is step-ordered and
     pixel-ordered per step; ``seg[k, y]`` counts the events of row y in step k and ``counts[y]`` the row total
@@ -142,16 +181,10 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
         crs8 = np.zeros(nw * 8, np.uint8)       # crossing flags, padded to whole words
         crs = crs8[:W]
         words = crs8.view(np.uint64)
-        if use_shot:
-            for x in range(W):
-                lam[y, x] = 0.0
         for k in range(K):
             t1 = t_us[k]
             dt = float(t1 - tp)
             n_before = n
-            if use_shot:
-                for x in range(W):
-                    lam[y, x] += (shot_a + shot_b * min(float(lin[k, y, x]), 1.0)) * dt
             # pass 1: new S of every pixel and whether it crosses, in a loop without
             # branches per configuration (a loop-invariant branch inside keeps it scalar)
             nbad = 0
@@ -191,7 +224,14 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                             r = s0 + (s1 - s0) * ((wake - tp) / dt)
                             ref[y, x] = r
                             crs[x] = (s1 - r >= thr_on[y, x] - CROSSING_TOL) | (r - s1 >= thr_off[y, x] - CROSSING_TOL)
-            # the pixels that cross (few: 8 flags are tested at once)
+            if use_shot:
+                # the hazard left to the next noise event falls by the step's integral of
+                # the rate; the pixels it reaches (flag 2) are handled in pass 2
+                for x in range(W):
+                    h = hz[y, x] - (shot_a + shot_b * min(float(lin[k, y, x]), 1.0)) * dt
+                    hz[y, x] = h
+                    crs[x] |= np.uint8(2) * np.uint8(h <= 0.0)
+            # the pixels that cross or fire a noise event (few: 8 flags are tested at once)
             m = 0
             for w8 in range(nw):
                 if words[w8] != 0:
@@ -199,35 +239,73 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                         if crs[x]:
                             idx[m] = x
                             m += 1
-            # pass 2: the events of the crossing pixels, in pixel order
+            # pass 2: the events of those pixels, in pixel order, each pixel's in time order
             for q in range(m):
                 x = idx[q]
                 s1 = s_prev[y, x]
                 s0 = s0row[x]
                 r = ref[y, x]
                 ton = thr_on[y, x]
-                if s1 - r >= ton - CROSSING_TOL:
-                    pol = 1
-                    stp = ton
-                    thr = ton
-                    sgn = 1.0
-                else:
-                    toff = thr_off[y, x]
-                    pol = 0
-                    stp = -toff
-                    thr = toff
-                    sgn = -1.0
+                toff = thr_off[y, x]
                 ds = s1 - s0
                 lt = last_t[y, x]
                 lb = last_bin[y, x]
-                while sgn * (s1 - r) >= thr - CROSSING_TOL:
+                fn = 2.0                    # step fraction of the next noise event (> 1: none)
+                hdt = 0.0
+                if crs[x] & 2:
+                    hdt = (shot_a + shot_b * min(float(lin[k, y, x]), 1.0)) * dt
+                    fn = (hz[y, x] + hdt) / hdt
+                while True:
+                    # the next threshold crossing from r and its step fraction fc
+                    if s1 - r >= ton - CROSSING_TOL:
+                        pol = 1
+                        stp = ton
+                    elif r - s1 >= toff - CROSSING_TOL:
+                        pol = 0
+                        stp = -toff
+                    else:
+                        pol = -1
+                        stp = 0.0
+                    fc = 2.0
+                    if pol >= 0:
+                        fc = (r + stp - s0) / ds if ds != 0.0 else 1.0
+                        if fc < 0.0:
+                            fc = 0.0
+                        elif fc > 1.0:
+                            fc = 1.0
+                    if fn < fc:
+                        # a noise event: fires unless in the refractory/readout period
+                        te = np.int64(math.floor(tp + fn * dt + 0.5))
+                        fire = te - lt >= refractory
+                        if fire and use_period:
+                            b = np.int64(math.floor(te / period))
+                            fire = b != lb
+                            if fire:
+                                lb = b
+                        e, pb = _noise_draw(key, y * W + x, nctr[y, x])
+                        nctr[y, x] += 1
+                        if fire:
+                            lt = te
+                            if n < cap:
+                                out_t[base + n] = te
+                                out_x[base + n] = x
+                                out_p[base + n] = pb
+                            n += 1
+                            r = s0 + ds * fn        # the reset: the reference takes S
+                            if use_reset:
+                                wake = te + refractory
+                                r = s1 if wake >= t1 else s0 + ds * ((wake - tp) / dt)
+                        rest = (1.0 - fn) * hdt
+                        if e <= rest:
+                            fn += e / hdt
+                        else:
+                            hz[y, x] = e - rest
+                            fn = 2.0
+                        continue
+                    if pol < 0:
+                        break
                     r += stp
-                    frac = (r - s0) / ds if ds != 0.0 else 1.0
-                    if frac < 0.0:
-                        frac = 0.0
-                    elif frac > 1.0:
-                        frac = 1.0
-                    te = np.int64(math.floor(tp + frac * dt + 0.5))
+                    te = np.int64(math.floor(tp + fc * dt + 0.5))
                     if te - lt < refractory:
                         continue
                     if use_period:
@@ -243,10 +321,7 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                     n += 1
                     if use_reset:           # held in reset: ref follows S until te + refractory
                         wake = te + refractory
-                        if wake >= t1:
-                            r = s1
-                            break
-                        r = s0 + ds * ((wake - tp) / dt)
+                        r = s1 if wake >= t1 else s0 + ds * ((wake - tp) / dt)
                 ref[y, x] = r
                 last_t[y, x] = lt
                 last_bin[y, x] = lb
@@ -556,8 +631,16 @@ class Sensor:
         self.ref = np.zeros((H, W))
         self.last_t = np.full((H, W), _NEVER, np.int64)
         self.last_bin = np.full((H, W), _NEVER, np.int64)
-        self.shot_lam = np.zeros((H, W))
-        self._state = (self.s_prev, self.lp, self.acc, self.ref, self.last_t, self.last_bin)
+        # shot noise: a counter-based stream (key drawn once from rng), the hazard left to
+        # each pixel's next noise event and the pixel's draw counter
+        self._noise_key = np.uint64(0)
+        self.shot_hazard = np.zeros((H, W))
+        self._noise_ctr = np.zeros((H, W), np.uint64)
+        if self._shot_a > 0:
+            self._noise_key = np.uint64(rng.integers(0, 1 << 63, dtype=np.int64))
+            _init_hazard(self.shot_hazard, self._noise_ctr, self._noise_key)
+        self._state = (self.s_prev, self.lp, self.acc, self.ref, self.last_t, self.last_bin,
+                       self.shot_hazard, self._noise_ctr)
         self._backup = tuple(np.empty_like(a) for a in self._state)
         self._counts = np.zeros(H, np.int64)
         self._bad = np.zeros(H, np.bool_)
@@ -742,7 +825,7 @@ class Sensor:
             _pixel_kernel(logf, decay, lin, self._lp_coef > 0, self._use_leak, self._shot_a > 0,
                           self._shot_a, self._shot_b, t, t0,
                           self.s_prev, self.lp, self.acc, self.ref, self.last_t, self.last_bin,
-                          self.shot_lam, self.thr_on, self.thr_off, self.drift,
+                          self.shot_hazard, self._noise_ctr, self._noise_key, self.thr_on, self.thr_off, self.drift,
                           float(self.degrade.refractory_us), float(self.degrade.sample_period_us),
                           out_t, out_x, out_p, seg, self._counts, self._bad, self._cap)
             bad = self._bad.any()
@@ -759,8 +842,6 @@ class Sensor:
         n_kernel = int(self._counts.sum())
         d, rng = self.degrade, self.rng
         noise = []
-        if self._shot_a > 0:
-            noise.append(effects.poisson_events(self.shot_lam.ravel(), None, t0, t1, self.width, rng))
         if self.hot_idx.size:
             lam = np.full(self.hot_idx.size, d.hot_pixel_hz * (t1 - t0) * 1e-6)
             noise.append(effects.poisson_events(lam, self.hot_idx, t0, t1, self.width, rng, self.hot_pol))

@@ -152,6 +152,36 @@ def test_leak_events_on_only_at_leak_rate():
     assert abs(np.log10(s.leak_rate_hz).std() - 0.1) < 0.01
 
 
+def test_shot_noise_resets_the_pixel_so_leak_fires_only_after_a_quiet_period():
+    """A noise event resets the pixel (reference = input), restarting the leak's
+    accumulation: with a uniform leak rate l and a noise rate R, a static pixel leaks only
+    when no noise event came for 1 / l since its last event, i.e. at the renewal rate
+    R e^{-R/l} / (1 - e^{-R/l}); noise stays balanced, so the leak rate is ON - OFF."""
+    leak, dark, level, seconds = 1.0, 2.0, 0.4, 12.0
+    fr, t = static(64, 64, level, seconds, steps=13)
+    ev, _ = run(fr, t, DegradeConfig(leak_hz=leak, leak_spread_decades=0.0, shot_noise_hz=dark), seed=3)
+    noise = dark * (1 + (0.25 - 1) * level)                 # 1.4 Hz at I = 0.4
+    q = math.exp(-noise / leak)
+    expected_leak = noise * q / (1 - q)                     # 0.46 Hz (1.0 without the reset)
+    n_on, n_off = int(ev.p.sum()), int((~ev.p.astype(bool)).sum())
+    per_pixel_s = 64 * 64 * seconds
+    assert abs((n_on - n_off) / per_pixel_s / expected_leak - 1) < 0.06
+    assert abs(2 * n_off / per_pixel_s / noise - 1) < 0.03   # the noise rate is unchanged
+
+
+def test_shot_noise_events_are_lost_in_the_refractory_hold_and_chunking_does_not_matter():
+    fr, t = static(32, 32, 0.0, 2.0, steps=21)
+    d = DegradeConfig(shot_noise_hz=400.0, refractory_us=2000.0)
+    ev, _ = run(fr, t, d, seed=5)
+    order = np.lexsort((ev.t, ev.y, ev.x))
+    gaps = np.diff(ev.t[order])[(np.diff(ev.x[order]) == 0) & (np.diff(ev.y[order]) == 0)]
+    assert gaps.min() >= 2000                                # nothing fires during the hold
+    # a dead time R after each of a Poisson(r) process's kept events: rate r / (1 + r R)
+    assert abs(len(ev) / (32 * 32 * 2.0) / (400.0 / (1 + 400.0 * 2e-3)) - 1) < 0.03
+    chunked, _ = run(fr, t, d, seed=5, chunk=3)
+    assert np.array_equal(ev.array, chunked.array)           # counter-based noise stream
+
+
 def test_hot_pixel_fraction_recovered():
     fr, t = static(64, 64, 0.5, 0.1)
     d = DegradeConfig(hot_pixel_fraction=0.01, hot_pixel_hz=1000.0)
