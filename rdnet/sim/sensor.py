@@ -132,6 +132,15 @@ def _init_hazard(hz, ctr, key):
 
 
 @njit(cache=True, inline="always")
+def _wake_level(s0, s1, tp, t1, wake):
+    """S at the wake-up time ``wake`` of a pixel held in reset during the step tp -> t1
+    (S linear from s0 to s1; s1 when it wakes at or after t1): its new reference."""
+    if wake >= t1:
+        return s1
+    return s0 + (s1 - s0) * ((wake - tp) / float(t1 - tp))
+
+
+@njit(cache=True, inline="always")
 def _lowpass(lp, decay, k, y, x, s1):
     """One low-pass step of pixel (y, x) towards ``s1`` (step k); returns the new state."""
     lpv = lp[y, x]
@@ -216,13 +225,11 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                     wake = last_t[y, x] + refractory
                     if wake > tp:
                         s1 = s_prev[y, x]
+                        r = _wake_level(s0row[x], s1, tp, t1, wake)
+                        ref[y, x] = r
                         if wake >= t1:
-                            ref[y, x] = s1
                             crs[x] = 0
                         else:
-                            s0 = s0row[x]
-                            r = s0 + (s1 - s0) * ((wake - tp) / dt)
-                            ref[y, x] = r
                             crs[x] = (s1 - r >= thr_on[y, x] - CROSSING_TOL) | (r - s1 >= thr_off[y, x] - CROSSING_TOL)
             if use_shot:
                 # the hazard left to the next noise event falls by the step's integral of
@@ -293,8 +300,7 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                             n += 1
                             r = s0 + ds * fn        # the reset: the reference takes S
                             if use_reset:
-                                wake = te + refractory
-                                r = s1 if wake >= t1 else s0 + ds * ((wake - tp) / dt)
+                                r = _wake_level(s0, s1, tp, t1, te + refractory)
                         rest = (1.0 - fn) * hdt
                         if e <= rest:
                             fn += e / hdt
@@ -320,8 +326,7 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                         out_p[base + n] = pol
                     n += 1
                     if use_reset:           # held in reset: ref follows S until te + refractory
-                        wake = te + refractory
-                        r = s1 if wake >= t1 else s0 + ds * ((wake - tp) / dt)
+                        r = _wake_level(s0, s1, tp, t1, te + refractory)
                 ref[y, x] = r
                 last_t[y, x] = lt
                 last_bin[y, x] = lb
