@@ -202,3 +202,23 @@ def test_from_degrade_maps_the_shared_keys():
         from_degrade(s, DegradeConfig(sample_period_us=100.0))
     with pytest.raises(ConfigError):
         CircuitParams(threshold_on=0.0)
+
+
+def test_leak_under_noise_resets_agrees_with_rdnets_simulator():
+    """Two independent models of the same physics (noise events reset the pixel) give the
+    same leak rate under noise at equal local rates (in the dark, where both noise laws give
+    the dark rate): the renewal rate R e^{-R/l} / (1 - e^{-R/l}) of a uniform leak."""
+    from rdnet.sim.sensor import Sensor
+    leak, noise, seconds, side = 1.0, 1.5, 10.0, 40
+    im, t = static(0.0, 41, int(seconds * 1e6 / 40), shape=(side, side))
+    ev = generate(im, t, CircuitParams(leak_hz=leak, leak_spread_decades=0.0, shot_noise_hz=noise),
+                  np.random.default_rng(3))
+    s = Sensor(side, side, SensorConfig(), DegradeConfig(leak_hz=leak, leak_spread_decades=0.0, shot_noise_hz=noise),
+               np.random.default_rng(3))
+    p = np.concatenate([s.step(im[:1], t[:1]).array["p"], s.step(im[1:], t[1:]).array["p"], s.flush().array["p"]])
+    q = math.exp(-noise / leak)
+    renewal = noise * q / (1 - q)
+    rates = [(2.0 * int(pp.sum()) - pp.size) / (side * side * seconds) for pp in (np.asarray(ev.p), p)]
+    for r in rates:
+        assert abs(r / renewal - 1) < 0.1, (rates, renewal)
+    assert renewal < 0.7 * leak          # without the resets both would show the full rate
