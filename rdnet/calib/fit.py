@@ -295,12 +295,14 @@ def _around(v: float, factor: float, p: Param) -> tuple[float, float]:
 
 # --- data-driven first guesses ------------------------------------------------------------
 
-def _guess(obj: Objective, values: dict, effect: Effect) -> dict | None:
+def _guess(obj: Objective, values: dict, effect: Effect, noise_reset: bool = True) -> dict | None:
     """A first guess for effects whose parameters can be read off the statistics
     (hot pixels: pixels whose net ON - OFF rate exceeds any simulated one; latency: the rate
     cross-correlation lag; shot noise / leak: the excess (ON - OFF for leak) event rate
-    of static pixels; ON/OFF asymmetry: the ON:OFF odds of the moving pixels, real against
-    simulated); None = use the grid."""
+    of static pixels, for leak the rate that shows as that excess under the simulated
+    noise's resets (:func:`leak_rate_under_noise`; the excess itself with
+    ``noise_reset=False``, the lower bound); ON/OFF asymmetry: the ON:OFF odds of the moving
+    pixels, real against simulated); None = use the grid."""
     ctx = obj.ctx
     if effect.name == "latency":
         sim = obj.stats_all(values)
@@ -317,10 +319,10 @@ def _guess(obj: Objective, values: dict, effect: Effect) -> dict | None:
         # falls to shot_noise_bright_factor at I = 1) or the excess of ON over OFF (leak)
         sim = obj.stats_all(values)
         real = obj.real_all
+        _, d = obj.configs(values)
+        lin = np.clip(ctx.images.mean(0)[ctx.static], 0.0, 1.0)
+        shape = float(np.mean(1.0 + (d.shot_noise_bright_factor - 1.0) * lin)) if lin.size else 1.0
         if effect.name == "shot_noise":
-            _, d = obj.configs(values)
-            lin = np.clip(ctx.images.mean(0)[ctx.static], 0.0, 1.0)
-            shape = float(np.mean(1.0 + (d.shot_noise_bright_factor - 1.0) * lin)) if lin.size else 1.0
             excess = (float(real["static_rate"]) - float(sim["static_rate"])) / max(shape, 1e-3)
         else:
             def on_minus_off(stats):
@@ -328,6 +330,8 @@ def _guess(obj: Objective, values: dict, effect: Effect) -> dict | None:
             excess = on_minus_off(real) - on_minus_off(sim)
         if excess <= 0:
             return None
+        if effect.name == "leak_events" and noise_reset:
+            excess = leak_rate_under_noise(excess, d.shot_noise_hz * shape)
         p = effect.params[0]
         v = dict(values)
         v[p.key] = float(np.clip(excess, p.lo, p.hi))
@@ -380,6 +384,17 @@ def refine(f: Evaluator, values: dict, params: list[Param], rounds: int, steps: 
             lo, hi = _around(cur, factor, p)
             v = golden(f, v, p.key, lo, hi, steps)
     return v
+
+
+def leak_rate_under_noise(observed_hz: float, noise_hz: float) -> float:
+    """The leak rate ``l`` that shows as ``observed_hz`` ON events per second in a static
+    pixel whose noise events (rate ``noise_hz``) reset it (:mod:`rdnet.sim.effects`): the
+    pixel leaks only when no noise event came for 1 / l since its last event, so the
+    observed rate is the renewal rate ``R e^{-R/l} / (1 - e^{-R/l})``; inverted,
+    ``l = R / log(1 + R / observed)`` (``observed`` when R = 0)."""
+    if noise_hz <= 0.0:
+        return float(observed_hz)
+    return float(noise_hz / math.log1p(noise_hz / observed_hz))
 
 
 def present_params(obj: Objective) -> list[Param]:
@@ -463,7 +478,8 @@ def screen_grid(p: Param, points: int) -> tuple[np.ndarray, np.ndarray]:
 
 def screen(obj: Objective, values: dict, effect: Effect, points: int, beta: float
            ) -> tuple[list[Evaluation], np.ndarray | None, np.ndarray | None]:
-    """Step 2: the effect at its data-driven guess or on a log grid of its range (at
+    """Step 2: the effect at its data-driven guess (leak: at two, the rate inverted for the
+    noise resets and the observed one) or on a log grid of its range (at
     count-matched thresholds when it changes the count; each grid point starts from the
     thresholds matched at the previous one); an additive effect (cheap: no pixel-circuit
     run) at both. Returns the evaluations, the grid and the indices of the grid points
@@ -472,7 +488,14 @@ def screen(obj: Objective, values: dict, effect: Effect, points: int, beta: floa
     g = _guess(obj, values, effect)
     cheap = all(additive(p) for p in effect.params)
     if g is not None and not cheap:
-        return [f(g)], None, None
+        evs = [f(g)]
+        if effect.name == "leak_events":
+            # the noise rate differs from pixel to pixel, so the inversion under the mean
+            # rate can overshoot: the observed excess (no suppression) is screened too
+            low = _guess(obj, values, effect, noise_reset=False)
+            if low is not None and low != g:
+                evs.append(f(low))
+        return evs, None, None
     base = dict(values)
     for p in effect.params:
         base.setdefault(p.key, math.sqrt(p.lo * p.hi))
