@@ -67,7 +67,7 @@ import numpy as np
 
 from rdnet.calib import stats as st
 from rdnet.calib.context import CalibContext
-from rdnet.calib.effects import OFF, THRESHOLD_SCALE, Effect, Param, absent_effects, apply, present_effects
+from rdnet.calib.effects import EFFECTS, OFF, THRESHOLD_SCALE, Effect, Param, absent_effects, apply, present_effects
 from rdnet.calib.engine import ADDITIVE_KEYS, Engine
 from rdnet.events.core import Events
 from rdnet.sim.effects import needs_rng
@@ -330,10 +330,16 @@ def _guess(obj: Objective, values: dict, effect: Effect, noise_reset: bool = Tru
             excess = on_minus_off(real) - on_minus_off(sim)
         if excess <= 0:
             return None
-        if effect.name == "leak_events" and noise_reset:
-            excess = leak_rate_under_noise(excess, d.shot_noise_hz * shape)
-        p = effect.params[0]
         v = dict(values)
+        if effect.name == "leak_events" and d.shot_noise_hz > 0:
+            # the static pixels' rate is matched already (the basic refit's noise): the leak
+            # takes its share, so the noise gives up what the leak adds there
+            noise = max(d.shot_noise_hz * shape - excess, 0.0)
+            q = EFFECTS["shot_noise"].params[0]
+            v[q.key] = float(np.clip(noise / max(shape, 1e-3), q.lo, q.hi))
+            if noise_reset:
+                excess = leak_rate_under_noise(excess, noise)
+        p = effect.params[0]
         v[p.key] = float(np.clip(excess, p.lo, p.hi))
         return v
     if effect.name == "onoff_asymmetry":
