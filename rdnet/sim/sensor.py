@@ -132,6 +132,17 @@ def _init_hazard(hz, ctr, key):
 
 
 @njit(cache=True, inline="always")
+def _emit(out_t, out_x, out_p, base, n, cap, te, x, pol):
+    """Write event n of a row buffer (while n < cap: the caller grows the buffers and
+    reruns the chunk on overflow); returns n + 1."""
+    if n < cap:
+        out_t[base + n] = te
+        out_x[base + n] = x
+        out_p[base + n] = pol
+    return n + 1
+
+
+@njit(cache=True, inline="always")
 def _wake_level(s0, s1, tp, t1, wake):
     """S at the wake-up time ``wake`` of a pixel held in reset during the step tp -> t1
     (S linear from s0 to s1; s1 when it wakes at or after t1): its new reference."""
@@ -293,11 +304,7 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                         nctr[y, x] += 1
                         if fire:
                             lt = te
-                            if n < cap:
-                                out_t[base + n] = te
-                                out_x[base + n] = x
-                                out_p[base + n] = pb
-                            n += 1
+                            n = _emit(out_t, out_x, out_p, base, n, cap, te, x, pb)
                             r = s0 + ds * fn        # the reset: the reference takes S
                             if use_reset:
                                 r = _wake_level(s0, s1, tp, t1, te + refractory)
@@ -320,11 +327,7 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                             continue
                         lb = b
                     lt = te
-                    if n < cap:
-                        out_t[base + n] = te
-                        out_x[base + n] = x
-                        out_p[base + n] = pol
-                    n += 1
+                    n = _emit(out_t, out_x, out_p, base, n, cap, te, x, pol)
                     if use_reset:           # held in reset: ref follows S until te + refractory
                         r = _wake_level(s0, s1, tp, t1, te + refractory)
                 ref[y, x] = r
