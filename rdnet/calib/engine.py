@@ -1,6 +1,7 @@
 """How the calibration simulates a parameter set: the project's pixel model
-(:class:`rdnet.sim.sensor.Sensor`) for what happens *inside* the pixel, composed with the
-additive noise and timestamp effects of :mod:`rdnet.sim.effects`, and summarised
+(:class:`rdnet.sim.sensor.Sensor`) for what happens *inside* the pixel (shot noise
+included: its events reset the pixel), composed with the additive hot-pixel and timestamp
+effects of :mod:`rdnet.sim.effects`, and summarised
 directly into the statistics of :mod:`rdnet.calib.stats`.
 
 The search evaluates hundreds of parameter sets on the same frames, and part of the
@@ -12,7 +13,7 @@ and latency move them. :class:`Engine` therefore splits a config in two:
   ``Sensor`` from log frames computed once per context, and cached per (kernel config,
   seed) (a small LRU);
 * the **additive** part (hot pixels, jitter, latency): drawn on top of the cached kernel
-  events with the simulator's own functions (:func:`effects.poisson_events`,
+  events with the simulator's own functions (:func:`effects.hot_pixel_events`,
   :func:`effects.hot_pixels`, :func:`rdnet.sim.sensor.apply_timing`), exactly as
   ``Sensor.step`` composes them for a single chunk.
 
@@ -168,8 +169,7 @@ class Engine:
             rng = np.random.default_rng([seed, _HOT])
             idx, pol = effects.hot_pixels(h, w, d, rng)
             if idx.size:
-                lam = np.full(idx.size, d.hot_pixel_hz * (t1 - t0) * 1e-6)
-                parts.append(effects.poisson_events(lam, idx, t0, t1, w, rng, pol))
+                parts.append(effects.hot_pixel_events(idx, pol, d.hot_pixel_hz, t0, t1, w, rng))
         timing = d.jitter_us > 0 or d.latency_us > 0
         if len(parts) == 1 and not timing:
             return arr

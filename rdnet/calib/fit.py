@@ -5,8 +5,8 @@ The search and the verdict run at three levels (:class:`Objective` each):
 * **search**: a pixel sample of at most ``search_max_sim_steps`` pixel-frames with the
   first ``search_seeds`` seeds fits the thresholds and the effects that act in the pixel
   circuit (every evaluation reruns the circuit);
-* **fine**: the final pixel sample with the search seeds fits the additive effects (noise,
-  hot pixels, timing; their evaluations reuse the cached circuit events, so the large
+* **fine**: the final pixel sample with the search seeds fits the additive effects (hot
+  pixels, timing; their evaluations reuse the cached circuit events, so the large
   sample costs little);
 * **final**: the final pixel sample with all ``seeds`` scores what the search found: every
   held-out gain, seed spread and significance is computed there.
@@ -25,8 +25,8 @@ Steps:
    that changes the event count (``Effect.changes_count``) is tried at *count-matched*
    thresholds (:class:`Compensated`), since that is how such an effect is concealed.
    Effects whose best screen point lowers the fit discrepancy by at least ``screen_gain``
-   of the fit discrepancy after the basic refit are *plausible*. Additive effects (noise,
-   hot pixels, timing) reuse the cached pixel-circuit events, so they are screened and
+   of the fit discrepancy after the basic refit are *plausible*. Additive effects (hot
+   pixels, timing) reuse the cached pixel-circuit events, so they are screened and
    fitted on the final pixel sample at the current thresholds.
 3. **Fit** (plausible effects: at most ``max_fitted`` of those that act in the pixel
    circuit, every additive one): golden section between the neighbours of the best
@@ -53,7 +53,8 @@ Steps:
 All candidates are simulated with the same seeds (common random numbers), so the
 differences between candidates are not drowned in simulation noise; and the simulations
 go through :class:`rdnet.calib.engine.Engine`, which reuses the pixel-circuit events of
-a config for every value of the additive effects (noise, hot pixels, timing).
+a config for every value of the additive effects (hot pixels, timing; shot noise resets
+the pixel, so it is simulated in the circuit).
 """
 from __future__ import annotations
 
@@ -410,7 +411,7 @@ def present_params(obj: Objective) -> list[Param]:
 
 
 def additive(p: Param) -> bool:
-    """Whether the parameter acts after the pixel circuit (noise, hot pixels, timing): its
+    """Whether the parameter acts after the pixel circuit (hot pixels, timing): its
     evaluations reuse the cached pixel-circuit events, so it is fitted on the final pixel
     sample."""
     return p.key in ADDITIVE_KEYS
@@ -442,15 +443,12 @@ def fit_basic(obj: Objective, fine: Objective | None = None) -> tuple[dict, floa
     outer = [p for p in params if additive(p)]
     if inner:
         v = refine(obj, v, inner, rounds=2, steps=cfg.refine_steps, factor=4.0)
-    for e in present_effects(obj.degrade):
-        if e.name != "shot_noise":
-            continue
-        o = fine if additive(e.params[0]) else obj
-        g = _guess(o, v, e)
-        if g is not None:   # the guess is an excess over the current rate
-            p = e.params[0]
-            g[p.key] = float(np.clip(v[p.key] + g[p.key], p.lo, p.hi))
-            v = g if o(g).fit_mean < o(v).fit_mean else v
+    shot = EFFECTS["shot_noise"]
+    g = _guess(obj, v, shot) if shot.present(obj.degrade) else None
+    if g is not None:       # the guess is an excess over the current rate
+        p = shot.params[0]
+        g[p.key] = float(np.clip(v[p.key] + g[p.key], p.lo, p.hi))
+        v = g if obj(g).fit_mean < obj(v).fit_mean else v
     if outer:
         v = refine(fine, v, outer, rounds=2, steps=cfg.refine_steps, factor=4.0)
     return refine(fine, v, [THRESHOLD_SCALE] + params, rounds=1, steps=cfg.refine_steps - 1, factor=1.25), beta

@@ -159,25 +159,18 @@ def shot_rate_coefs(degrade: DegradeConfig) -> tuple[float, float]:
 
 # --- vectorized per-chunk effects ------------------------------------------------------
 
-def poisson_events(expected: np.ndarray, pixels: np.ndarray | None, t0: int, t1: int,
-                   width: int, rng: np.random.Generator, polarity: np.ndarray | None = None
-                   ) -> np.ndarray:
-    """Poisson events: pixel i gets ``Poisson(expected[i])`` events at uniform times in
-    [t0, t1); ``pixels`` gives the flat pixel index of each entry of ``expected`` (None:
-    entry i is pixel i). Polarity is fixed per entry when ``polarity`` is given, else
-    ON/OFF with probability 1/2 per event. Returns an EVENT_DTYPE array grouped by pixel
-    (not sorted)."""
-    counts = rng.poisson(expected)
+def hot_pixel_events(pixels: np.ndarray, polarity: np.ndarray, rate_hz: float, t0: int, t1: int,
+                     width: int, rng: np.random.Generator) -> np.ndarray:
+    """The hot pixels' events of [t0, t1): hot pixel i (flat index ``pixels[i]``, fixed
+    ``polarity[i]``) gets ``Poisson(rate_hz (t1 - t0))`` events at uniform times. Returns an
+    EVENT_DTYPE array grouped by pixel (not sorted)."""
+    counts = rng.poisson(np.full(pixels.size, rate_hz * (int(t1) - int(t0)) * 1e-6))
     n = int(counts.sum())
-    flat = np.arange(expected.size, dtype=np.int64) if pixels is None else pixels
-    idx = np.repeat(flat, counts)
+    idx = np.repeat(pixels, counts)
     span = max(int(t1) - int(t0), 1)
     out = np.empty(n, EVENT_DTYPE)
     out["t"] = int(t0) + np.floor(rng.random(n) * span).astype(np.int64)
-    if polarity is None:
-        out["p"] = rng.random(n) < 0.5
-    else:
-        out["p"] = np.repeat(polarity, counts)
+    out["p"] = np.repeat(polarity, counts)
     y, x = np.divmod(idx, width)
     out["x"], out["y"] = x, y
     return out

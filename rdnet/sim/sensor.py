@@ -143,6 +143,21 @@ def _emit(out_t, out_x, out_p, base, n, cap, te, x, pol):
 
 
 @njit(cache=True, inline="always")
+def _admit(te, lt, lb, refractory, use_period, period):
+    """Whether an event (threshold crossing or noise) at ``te`` is emitted by a pixel whose
+    last event was at ``lt`` in readout period ``lb``: not within ``refractory`` of it, nor
+    in the same readout period. Returns (emitted, the pixel's readout period after it)."""
+    if te - lt < refractory:
+        return False, lb
+    if use_period:
+        b = np.int64(math.floor(te / period))
+        if b == lb:
+            return False, lb
+        return True, b
+    return True, lb
+
+
+@njit(cache=True, inline="always")
 def _wake_level(s0, s1, tp, t1, wake):
     """S at the wake-up time ``wake`` of a pixel held in reset during the step tp -> t1
     (S linear from s0 to s1; s1 when it wakes at or after t1): its new reference."""
@@ -294,12 +309,7 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                     if fn < fc:
                         # a noise event: fires unless in the refractory/readout period
                         te = np.int64(math.floor(tp + fn * dt + 0.5))
-                        fire = te - lt >= refractory
-                        if fire and use_period:
-                            b = np.int64(math.floor(te / period))
-                            fire = b != lb
-                            if fire:
-                                lb = b
+                        fire, lb = _admit(te, lt, lb, refractory, use_period, period)
                         e, pb = _noise_draw(key, y * W + x, nctr[y, x])
                         nctr[y, x] += 1
                         if fire:
@@ -319,13 +329,9 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                         break
                     r += stp
                     te = np.int64(math.floor(tp + fc * dt + 0.5))
-                    if te - lt < refractory:
+                    ok, lb = _admit(te, lt, lb, refractory, use_period, period)
+                    if not ok:
                         continue
-                    if use_period:
-                        b = np.int64(math.floor(te / period))
-                        if b == lb:
-                            continue
-                        lb = b
                     lt = te
                     n = _emit(out_t, out_x, out_p, base, n, cap, te, x, pol)
                     if use_reset:           # held in reset: ref follows S until te + refractory
@@ -851,8 +857,7 @@ class Sensor:
         d, rng = self.degrade, self.rng
         noise = []
         if self.hot_idx.size:
-            lam = np.full(self.hot_idx.size, d.hot_pixel_hz * (t1 - t0) * 1e-6)
-            noise.append(effects.poisson_events(lam, self.hot_idx, t0, t1, self.width, rng, self.hot_pol))
+            noise.append(effects.hot_pixel_events(self.hot_idx, self.hot_pol, d.hot_pixel_hz, t0, t1, self.width, rng))
         if not noise and not self._timing:
             arr = np.empty(n_kernel, EVENT_DTYPE)
             if arr.size:
