@@ -41,6 +41,8 @@ ADDITIVE_KEYS = ("hot_pixel_fraction", "hot_pixel_hz", "jitter_us", "latency_us"
 #: stream ids of the per-component random generators (np.random.default_rng([seed, id]))
 #: (1 was the additive shot noise's until shot-noise events reset the pixel, 2026-11)
 _KERNEL, _HOT, _TIMING, _REFERENCE = 0, 2, 3, 4
+#: frame step of the warm-up on a held frame (the kernel's noise and leak are exact within a step)
+WARMUP_STEP_US = 50_000
 
 
 def randomize_reference(sensor: Sensor, degrade: DegradeConfig, u: np.ndarray) -> None:
@@ -55,18 +57,53 @@ def randomize_reference(sensor: Sensor, degrade: DegradeConfig, u: np.ndarray) -
     sensor.ref[...] = sensor.s_prev + sensor.thr_off - u * (sensor.thr_on + sensor.thr_off)
 
 
+def warms_up(degrade: DegradeConfig) -> bool:
+    """Whether a simulation of ``degrade`` warms up before the recording: with leak, whose
+    phase in a static pixel (its drift since the last noise or leak event) decides when
+    that pixel's first leak event comes. Shot noise alone does not: a static pixel's
+    reference makes no event without leak, and on a pixel that moves in the recording a
+    noise reset before it would assume the scene was still then (tried: on the circuit
+    proof's 60 fps null a bandwidth or readout limit was then named)."""
+    return degrade.leak_hz > 0
+
+
+def start(sensor: Sensor, degrade: DegradeConfig, frame: np.ndarray, t0: int, u: np.ndarray | None,
+          warmup_us: int, *, log: bool = False) -> None:
+    """Set the state of a fresh ``sensor`` as it is when a recording starts at ``t0``: the
+    pixels have been running before. Their reference starts at a random point between the
+    thresholds (:func:`randomize_reference`, ``u``; None: at the input), then, when
+    :func:`warms_up` (leak), they run for ``warmup_us`` on ``frame`` (1, H, W) held still, so
+    leak (the reference drifts) and shot noise (each event resets the pixel) bring every
+    static pixel to its stationary state; those events are dropped. Without the warm-up a static pixel
+    under leak starts anywhere below its ON threshold, while one that has been running sits
+    at its age since the last noise event or leak event (a truncated exponential under
+    noise resets): in a recording shorter than 1 / leak the first leak events come from that
+    start alone."""
+    warm = warmup_us > 0 and warms_up(degrade)
+    t_start = t0 - int(warmup_us) if warm else t0
+    sensor.step(frame, np.array([t_start], np.int64), log=log)
+    if u is not None:
+        randomize_reference(sensor, degrade, u)
+    if warm:
+        t = np.linspace(t_start, t0, max(2, -(-int(warmup_us) // WARMUP_STEP_US) + 1)).round().astype(np.int64)[1:]
+        sensor.step(np.repeat(frame, t.size, axis=0), t, log=log)
+
+
 def simulate_random_start(images: np.ndarray, t_us: np.ndarray, sensor: SensorConfig, degrade: DegradeConfig,
-                          rng: np.random.Generator | None, ref_rng: np.random.Generator) -> Events:
+                          rng: np.random.Generator | None, ref_rng: np.random.Generator,
+                          warmup_us: int = 0) -> Events:
     """:func:`rdnet.sim.pair.simulate` of (N, H, W) linear frames (already upsampled) with
     every pixel's reference started at a random point between its thresholds
-    (:func:`randomize_reference`, ``u`` drawn from ``ref_rng``): a recording's events, whose
-    pixels were in an unknown state when it started."""
+    (:func:`randomize_reference`, ``u`` drawn from ``ref_rng``) and, with ``warmup_us``,
+    warmed up on the first frame held still (:func:`start`): a recording's events, whose
+    pixels were in an unknown state when it started. Events before ``t_us[0]`` are dropped."""
     n, h, w = images.shape
     s = Sensor(w, h, sensor, degrade, rng)
-    s.step(images[:1], t_us[:1])
-    randomize_reference(s, degrade, ref_rng.random((h, w)))
+    t0 = int(t_us[0])
+    start(s, degrade, images[:1], t0, ref_rng.random((h, w)), warmup_us)
     parts = [s.step(images[1:], t_us[1:]).array, s.flush().array]
-    return Events(sort_events(np.concatenate(parts)), w, h, validate=False)
+    arr = sort_events(np.concatenate(parts))
+    return Events(arr[arr["t"] >= t0], w, h, validate=False)
 
 
 def _kernel_degrade(degrade: DegradeConfig) -> DegradeConfig:
@@ -87,11 +124,14 @@ class Engine:
     ``cache_size``: kernel event sets kept (each holds one simulation's events).
     ``random_reference``: start every pixel's reference at a random point between its
     thresholds, drawn per seed (default ``ctx.cfg.random_reference``; see
-    :meth:`kernel_events`)."""
+    :meth:`kernel_events`). ``warmup_us``: how long the pixels run on the first frame held
+    still before the recording (default ``ctx.cfg.warmup_us``; :func:`start`)."""
 
-    def __init__(self, ctx: CalibContext, cache_size: int = 24, random_reference: bool | None = None):
+    def __init__(self, ctx: CalibContext, cache_size: int = 24, random_reference: bool | None = None,
+                 warmup_us: int | None = None):
         self.ctx = ctx
         self.random_reference = bool(ctx.cfg.random_reference if random_reference is None else random_reference)
+        self.warmup_us = int(ctx.cfg.warmup_us if warmup_us is None else warmup_us)
         self._ref_u = {}
         self.lin = np.ascontiguousarray(ctx.sim_images, dtype=np.float32)
         self.t = np.ascontiguousarray(ctx.sim_t, dtype=np.int64)
@@ -127,7 +167,8 @@ class Engine:
     def kernel_events(self, sensor: SensorConfig, degrade: DegradeConfig, seed: int) -> np.ndarray:
         """Time-sorted events of the pixel circuit alone (additive effects off). With
         ``random_reference`` every pixel's reference starts at a random point between its
-        thresholds (:func:`randomize_reference`, u ~ U[0, 1) per pixel and seed)."""
+        thresholds (:func:`randomize_reference`, u ~ U[0, 1) per pixel and seed); with leak
+        the pixels then warm up on the first frame (:func:`start`)."""
         kd = _kernel_degrade(degrade)
         rand_ref = self.random_reference and kd.leak_hz <= 0
         rnd = effects.needs_rng(kd) or rand_ref
@@ -139,9 +180,9 @@ class Engine:
         rng = np.random.default_rng([seed, _KERNEL]) if rnd else None
         h, w = self.lin.shape[1:]
         s = Sensor(w, h, sensor, kd, rng)
-        s.step(self.lin[:1], self.t[:1])          # the first frame sets the state (linear, as simulate)
-        if rand_ref:
-            randomize_reference(s, kd, self.reference_phase(seed))
+        # the first frame sets the state (linear, as simulate), then the warm-up on it
+        start(s, kd, self.lin[:1], int(self.t[0]), self.reference_phase(seed) if rand_ref else None,
+              self.warmup_us)
         if kd.cutoff_hz > 0:                       # the low-pass needs the linear intensity too
             ev = s.step(self.lin[1:], self.t[1:], log_frames=self.log_frames(sensor.log_eps)[1:])
         else:
@@ -189,4 +230,4 @@ class Engine:
         return Events(sort_events(arr), w, h, validate=False)
 
 
-__all__ = ["ADDITIVE_KEYS", "Engine", "kernel_key", "randomize_reference", "simulate_random_start"]
+__all__ = ["ADDITIVE_KEYS", "Engine", "kernel_key", "randomize_reference", "simulate_random_start", "start", "warms_up"]

@@ -42,7 +42,7 @@ import numpy as np
 
 from rdnet.calib.calibrate import calibrate, numba_threads
 from rdnet.calib.effects import EFFECTS, apply
-from rdnet.calib.engine import simulate_random_start
+from rdnet.calib.engine import simulate_random_start, warms_up
 from rdnet.calib.fit import default_simulate
 from rdnet.calib.scene import SceneSpec, render
 from rdnet.calib.settings import CalibrateConfig
@@ -166,25 +166,34 @@ def cases_for(generator: str = "both", quick: bool = False) -> dict[str, tuple[P
     return out
 
 
-def _truth_events(frames, sensor, degrade, seed):
+#: how long the sensor of a "real" recording has been running on its first frame before the
+#: recording starts (both generators; the calibration assumes ``calibrate.warmup_us``)
+TRUTH_WARMUP_US = 5_000_000
+
+
+def _truth_events(frames, sensor, degrade, seed, warmup_us=TRUTH_WARMUP_US):
     """The "real" events: the simulator with every pixel started at a random point between
-    its thresholds (a recording starts in an unknown pixel state), the same draws for every
-    config of one case (``seed``)."""
+    its thresholds and warmed up for ``warmup_us`` on the first frame (a recording starts
+    from a running sensor, in an unknown pixel state), the same draws for every config of
+    one case (``seed``)."""
     if frames.images.ndim != 3:
         return default_simulate(frames.images, frames.t_us, sensor, degrade, np.random.default_rng(seed))
     return simulate_random_start(frames.images, frames.t_us, sensor, degrade, np.random.default_rng(seed),
-                                 np.random.default_rng([seed, 7]))
+                                 np.random.default_rng([seed, 7]), warmup_us=warmup_us)
 
 
-def _circuit_events(frames, sensor, degrade, seed, extra=()):
-    """The "real" events from the independent circuit model (:mod:`rdnet.circuit`)."""
+def _circuit_events(frames, sensor, degrade, seed, extra=(), warmup_us=TRUTH_WARMUP_US):
+    """The "real" events from the independent circuit model (:mod:`rdnet.circuit`), its
+    array warmed up for ``warmup_us`` on the first frame when the truth has leak (the rule
+    of :func:`rdnet.calib.engine.warms_up`, so that both generators start alike)."""
     from rdnet.circuit import from_degrade, generate
     return generate(frames.images, frames.t_us, from_degrade(sensor, degrade, **dict(extra)),
-                    np.random.default_rng(seed), random_start=True)
+                    np.random.default_rng(seed), random_start=True, warmup_us=warmup_us if warms_up(degrade) else 0.0)
 
 
 def make_recording(case: ProofCase, spec: SceneSpec, sensor: SensorConfig, rng: np.random.Generator,
-                   oversample: int = 1, interpolate=None, circuit_oversample: int = 4) -> tuple[Recording, dict]:
+                   oversample: int = 1, interpolate=None, circuit_oversample: int = 4,
+                   truth_warmup_us: float = TRUTH_WARMUP_US) -> tuple[Recording, dict]:
     """The concealed recording of ``case`` and the truth: ``{"degrade": {...},
     "threshold_scale": s, "base_count": n, "count": n, "uncompensated_count": n}`` (and
     ``"circuit"``: the full circuit parameters, for a circuit case).
@@ -192,7 +201,8 @@ def make_recording(case: ProofCase, spec: SceneSpec, sensor: SensorConfig, rng: 
     rdnet generator: ``oversample`` > 1: the true events come from frames rendered that many
     times denser than the recorded ones (the calibration must then also absorb its own
     interpolation error); 1: from the recorded frames upsampled exactly as the calibration
-    will (``interpolate``), so the only difference is the concealed effect. Circuit
+    will (``interpolate``), so the only difference is the concealed effect (and the
+    warm-up: the truth's sensor has run ``truth_warmup_us`` on the first frame). Circuit
     generator: always from frames rendered ``circuit_oversample`` times denser (the circuit
     interpolates linearly between them and integrates in sub-steps)."""
     spec = dataclasses.replace(spec, motion=case.motion, **dict(case.scene))
@@ -209,10 +219,10 @@ def make_recording(case: ProofCase, spec: SceneSpec, sensor: SensorConfig, rng: 
     seed = int(rng.integers(1 << 30)) + 10_000_000          # never one of the calibration seeds
     if circuit:
         def events_of(s_, d_):
-            return _circuit_events(fine, s_, d_, seed, case.circuit)
+            return _circuit_events(fine, s_, d_, seed, case.circuit, truth_warmup_us)
     else:
         def events_of(s_, d_):
-            return _truth_events(fine, s_, d_, seed)
+            return _truth_events(fine, s_, d_, seed, truth_warmup_us)
     base_deg = DegradeConfig(**case.base)
     n_base = len(events_of(sensor, base_deg))
     values = dict(case.truth)
@@ -297,15 +307,18 @@ def case_metrics(case: ProofCase, report: dict, truth: dict) -> dict:
 def run_proof(cases: Sequence[ProofCase] | None, out_dir: str | Path | None, rng: np.random.Generator, *,
               spec: SceneSpec = SceneSpec(), sensor: SensorConfig = SensorConfig(),
               cfg: CalibrateConfig = CalibrateConfig(), oversample: int = 1, interpolate=None,
-              seed: int = 0, circuit_oversample: int = 4) -> dict:
+              seed: int = 0, circuit_oversample: int = 4, truth_warmup_us: float = TRUTH_WARMUP_US) -> dict:
     """Run the calibration blind on every case; write each case's report under
-    ``out_dir/<case>/`` (when given) and return ``{"cases": [...], "summary": {...}}``."""
+    ``out_dir/<case>/`` (when given) and return ``{"cases": [...], "summary": {...}}``.
+    ``truth_warmup_us``: how long the true sensor runs on the first frame before the
+    recording (:data:`TRUTH_WARMUP_US`)."""
     from rdnet.calib.report import write_json, write_report
     cases = CASES if cases is None else cases
     results = []
     for case in cases:
         with numba_threads(cfg.threads):
-            rec, truth = make_recording(case, spec, sensor, rng, oversample, interpolate, circuit_oversample)
+            rec, truth = make_recording(case, spec, sensor, rng, oversample, interpolate, circuit_oversample,
+                                        truth_warmup_us)
         log.info("proof case %s: truth %s", case.name, truth)
         cal = calibrate(rec, sensor, DegradeConfig(**case.base), cfg, seed=seed, interpolate=interpolate,
                         source=f"proof:{case.name}")
@@ -399,6 +412,8 @@ def add_proof_arguments(ap) -> None:
     ap.add_argument("--generator", choices=("rdnet", "circuit", "both"), default="both",
                     help="model of the true events")
     ap.add_argument("--quick", action="store_true", help=f"only the subset {', '.join(QUICK)}")
+    ap.add_argument("--truth-warmup-us", type=float, default=TRUTH_WARMUP_US,
+                    help="the true sensor runs this long on the first frame before the recording (0: off)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -418,7 +433,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     runs = run_generators(args.out, args.seed, generator=args.generator, quick=args.quick, names=args.cases,
                           oversample=args.oversample, interpolate=InterpolateConfig(max_upsample=args.max_upsample),
-                          circuit_oversample=args.circuit_oversample)
+                          circuit_oversample=args.circuit_oversample, truth_warmup_us=args.truth_warmup_us)
     for gen, m in runs.items():
         print(f"generator {gen}:")
         print(format_table(m))

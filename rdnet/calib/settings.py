@@ -60,6 +60,10 @@ class CalibrateConfig:
     random point between its OFF and ON thresholds (the unknown state at recording start)
     instead of at the first frame, so even a deterministic pixel model has an honest seed
     spread; off = the simulator's own start (seed-independent for deterministic configs).
+    ``warmup_us``: with leak, every simulation first runs the pixels this long
+    on the first frame held still and drops those events (:func:`rdnet.calib.engine.start`):
+    a real recording starts from a sensor that has been running, whose static pixels sit
+    where leak drift and noise resets left them (0 = start at the reference above).
     """
 
     segments: int = 6
@@ -86,6 +90,7 @@ class CalibrateConfig:
     candidates: Tuple[str, ...] = ()
     interpolation: Tuple[str, ...] = ("flow", "linear")
     random_reference: bool = True
+    warmup_us: int = 3_000_000
 
     def __post_init__(self):
         if self.segments < 2:
@@ -98,7 +103,7 @@ class CalibrateConfig:
             positive(f"calibrate.{key}", getattr(self, key), allow_zero=False)
         for key in ("static_contrast", "significance", "min_relative_gain", "signature_significance", "max_effects", "screen_gain",
                     "refine_steps", "max_lag_us", "max_sim_steps", "search_max_sim_steps", "max_upsample",
-                    "threads"):
+                    "threads", "warmup_us"):
             positive(f"calibrate.{key}", getattr(self, key))
         object.__setattr__(self, "candidates", tuple(self.candidates))
         object.__setattr__(self, "interpolation", tuple(self.interpolation))

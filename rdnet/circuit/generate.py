@@ -151,18 +151,28 @@ def _as_linear(images: np.ndarray) -> np.ndarray:
     return im.astype(np.float64)
 
 
+#: sub-step of the warm-up on a held frame: the input is constant, so only the shot noise's
+#: one-event-per-sub-step limit depends on it (at 5 ms and 2 Hz, 0.5 % of the noise events)
+WARMUP_STEP_US = 5_000.0
+
+
 def generate(images: np.ndarray, t_us: np.ndarray, params: CircuitParams, rng: np.random.Generator,
-             *, random_start: bool = True) -> Events:
+             *, random_start: bool = True, warmup_us: float = 0.0) -> Events:
     """Events of the circuit pixel array for frames ``images`` at ``t_us``.
 
     ``random_start``: every pixel starts with its memorised level at a uniformly random
     point between its thresholds (an unknown state, as at the start of a real recording);
     False: at the input (a pixel just reset). Photoreceptor and follower start in steady
-    state. Timestamps are integer microseconds from ``t_us[0]``'s clock."""
+    state. ``warmup_us``: the array first runs that long on the first frame held still
+    (sub-steps of :data:`WARMUP_STEP_US`; its events are dropped), so noise resets and leak
+    drift leave every pixel where a sensor that has been running has it.
+    Timestamps are integer microseconds from ``t_us[0]``'s clock."""
     im = _as_linear(images)
     t = np.asarray(t_us, np.int64)
     if len(t) < 2 or np.any(np.diff(t) <= 0):
         raise ValidationError("frames/t", "need >= 2 frames with increasing timestamps")
+    if not warmup_us >= 0:
+        raise ValidationError("warmup_us", f"must be >= 0, got {warmup_us}")
     n, H, W = im.shape
     P = H * W
     thr_on, thr_off, leak = pixel_parameters(P, params, rng)
@@ -178,13 +188,16 @@ def generate(images: np.ndarray, t_us: np.ndarray, params: CircuitParams, rng: n
     refr = float(params.refractory_us)
     cap = 4 * P + 1024
     parts_t, parts_p, parts_x = [], [], []
-    for i in range(n - 1):
-        t0, t1 = float(t[i]), float(t[i + 1])
-        nsub = max(1, int(math.ceil((t1 - t0) / params.max_step_us)))
+    # (I0, I1, t0, t1, sub-steps, keep the events): the warm-up on the held first frame, then the frames
+    n_warm = int(math.ceil(warmup_us / WARMUP_STEP_US))
+    t_warm = np.linspace(float(t[0]) - warmup_us, float(t[0]), n_warm + 1)
+    steps = [(first, first, t_warm[j], t_warm[j + 1], 1, False) for j in range(n_warm)]
+    steps += [(im[i].ravel(), im[i + 1].ravel(), float(t[i]), float(t[i + 1]),
+               max(1, int(math.ceil((t[i + 1] - t[i]) / params.max_step_us))), True) for i in range(n - 1)]
+    for I0, I1, t0, t1, nsub, keep in steps:
         u_noise = rng.random((P, nsub)) if shot > 0 else _NONE
         u_pol = rng.random((P, nsub)) if shot > 0 else _NONE
         z = rng.standard_normal((P, nsub)) if sig > 0 else _NONE
-        I0, I1 = im[i].ravel(), im[i + 1].ravel()
         state = (vp.copy(), vs.copy(), vmem.copy(), wake.copy())
         while True:
             ot, op, ox = np.empty(cap), np.empty(cap, np.uint8), np.empty(cap, np.int64)
@@ -194,9 +207,10 @@ def generate(images: np.ndarray, t_us: np.ndarray, params: CircuitParams, rng: n
                 break
             vp, vs, vmem, wake = (a.copy() for a in state)      # buffer full: redo from the saved state
             cap *= 4
-        parts_t.append(ot[:k])
-        parts_p.append(op[:k])
-        parts_x.append(ox[:k])
+        if keep:
+            parts_t.append(ot[:k])
+            parts_p.append(op[:k])
+            parts_x.append(ox[:k])
     te = np.concatenate(parts_t) if parts_t else np.empty(0)
     pe = np.concatenate(parts_p) if parts_p else np.empty(0, np.uint8)
     xe = np.concatenate(parts_x) if parts_x else np.empty(0, np.int64)

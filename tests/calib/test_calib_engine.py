@@ -170,3 +170,24 @@ def test_gather_sorts_each_step_stably(scale):
     _gather_sorted(t, x, p, seg, cap, np.array([1000, 2000], np.int64) * scale, 0, out)
     want = [(3, 2, 0), (3, 0, 1), (5, 1, 0), (1000, 3, 1), (1000, 0, 0), (1000, 4, 1), (1700, 1, 0)]
     assert [(int(e["t"]), int(e["x"]), int(e["y"])) for e in out] == [(a * scale, b, c) for a, b, c in want]
+
+
+def test_warm_up_runs_only_configs_with_leak(ctx):
+    """The warm-up on the held first frame (rdnet.calib.engine.start) runs only with leak:
+    any other config, shot noise included, gives the same events with or without it, and
+    events before the recording's first frame are dropped. (Its known answer, the
+    stationary leak rate under noise resets, is tested against the circuit model in
+    tests/circuit.)"""
+    cold, warm = Engine(ctx, warmup_us=0), Engine(ctx, warmup_us=3_000_000)
+    for det in (DegradeConfig(refractory_us=2000.0, threshold_sigma=0.1), DegradeConfig(shot_noise_hz=2.0)):
+        assert np.array_equal(cold.events(SENSOR, det, 1).array, warm.events(SENSOR, det, 1).array)
+    noisy = DegradeConfig(leak_hz=1.0, shot_noise_hz=1.0)
+    a, b = cold.events(SENSOR, noisy, 1).array, warm.events(SENSOR, noisy, 1).array
+    assert not np.array_equal(a, b)
+    assert b["t"].min() >= ctx.sim_t[0]
+
+
+def test_warm_up_must_not_be_negative():
+    from rdnet.errors import ConfigError
+    with pytest.raises(ConfigError, match="calibrate.warmup_us"):
+        CalibrateConfig(warmup_us=-1)

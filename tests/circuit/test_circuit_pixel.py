@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from rdnet.circuit import CircuitParams, from_degrade, generate, pixel_parameters
-from rdnet.errors import ConfigError
+from rdnet.errors import ConfigError, ValidationError
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
 TINY_DARK = 1e-9          # log(I + i_dark) = log(I) to 1e-7 at the intensities used
@@ -222,3 +222,44 @@ def test_leak_under_noise_resets_agrees_with_rdnets_simulator():
     for r in rates:
         assert abs(r / renewal - 1) < 0.1, (rates, renewal)
     assert renewal < 0.7 * leak          # without the resets both would show the full rate
+
+
+def test_warm_up_starts_both_models_in_the_stationary_state():
+    """A recording starts from a sensor that has been running. A static pixel under leak l
+    and noise resets at rate R then leaks at the renewal rate R e^{-R/l} / (1 - e^{-R/l})
+    from the first microsecond (0.233 Hz for l = 0.6, R = 1), which both models give after
+    a warm-up on the held first frame. Without it, a recording shorter than 1 / l shows the
+    start instead: rdnet's leak phase is uniform below the ON threshold, so its first leak
+    event falls in (0, 1/l) (0.6 x (1 - e^-1) = 0.379 per pixel in 1 s, 1.63x), the
+    circuit's memorised level is uniform between the OFF and the ON threshold, twice as far
+    (0.190, 0.81x)."""
+    from rdnet.calib.engine import simulate_random_start
+    leak, noise, side = 0.6, 1.0, 128
+    im, t = static(0.0, 41, 25_000, shape=(side, side))         # 1 s of a dark still scene
+    deg = DegradeConfig(leak_hz=leak, leak_spread_decades=0.0, shot_noise_hz=noise)
+    q = math.exp(-noise / leak)
+    renewal = noise * q / (1 - q)
+
+    def rate(p):                      # leak events per pixel and second: ON - OFF (noise is balanced)
+        p = np.asarray(p)
+        return (2.0 * int(p.sum()) - p.size) / (side * side * 1.0)
+
+    def circuit(warm):
+        return rate(generate(im, t, from_degrade(SensorConfig(), deg), np.random.default_rng(4), warmup_us=warm).p)
+
+    def rdnet(warm):
+        return rate(simulate_random_start(im, t, SensorConfig(), deg, np.random.default_rng(4),
+                                          np.random.default_rng(5), warmup_us=warm).p)
+
+    warmed = {"circuit": circuit(5e6), "rdnet": rdnet(5_000_000)}
+    for model, r in warmed.items():
+        assert abs(r / renewal - 1) < 0.1, (model, r, renewal)
+    cold_rdnet, cold_circuit = rdnet(0), circuit(0.0)
+    assert 1.45 < cold_rdnet / renewal < 1.8, cold_rdnet
+    assert 0.65 < cold_circuit / renewal < 0.92, cold_circuit
+
+
+def test_warm_up_needs_a_non_negative_duration():
+    im, t = static(0.5, 3, 1000)
+    with pytest.raises(ValidationError, match="warmup_us"):
+        generate(im, t, CircuitParams(), np.random.default_rng(0), warmup_us=-1.0)
