@@ -103,7 +103,9 @@ def simulate_random_start(images: np.ndarray, t_us: np.ndarray, sensor: SensorCo
     start(s, degrade, images[:1], t0, ref_rng.random((h, w)), warmup_us)
     parts = [s.step(images[1:], t_us[1:]).array, s.flush().array]
     arr = sort_events(np.concatenate(parts))
-    return Events(arr[arr["t"] >= t0], w, h, validate=False)
+    if warmup_us > 0 and warms_up(degrade):
+        arr = arr[arr["t"] >= t0]
+    return Events(arr, w, h, validate=False)
 
 
 def _kernel_degrade(degrade: DegradeConfig) -> DegradeConfig:

@@ -168,7 +168,7 @@ def cases_for(generator: str = "both", quick: bool = False) -> dict[str, tuple[P
 
 #: how long the sensor of a "real" recording has been running on its first frame before the
 #: recording starts (both generators; the calibration assumes ``calibrate.warmup_us``)
-TRUTH_WARMUP_US = 5_000_000
+TRUTH_WARMUP_US = 0   # 5_000_000 in the README's warm-up runs (--truth-warmup-us)
 
 
 def _truth_events(frames, sensor, degrade, seed, warmup_us=TRUTH_WARMUP_US):

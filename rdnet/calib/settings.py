@@ -63,7 +63,8 @@ class CalibrateConfig:
     ``warmup_us``: with leak, every simulation first runs the pixels this long
     on the first frame held still and drops those events (:func:`rdnet.calib.engine.start`):
     a real recording starts from a sensor that has been running, whose static pixels sit
-    where leak drift and noise resets left them (0 = start at the reference above).
+    where leak drift and noise resets left them (0, the default = start at the reference
+    above; README "The warm-up" has what 3 s did on the proof).
     """
 
     segments: int = 6
@@ -90,7 +91,7 @@ class CalibrateConfig:
     candidates: Tuple[str, ...] = ()
     interpolation: Tuple[str, ...] = ("flow", "linear")
     random_reference: bool = True
-    warmup_us: int = 3_000_000
+    warmup_us: int = 0
 
     def __post_init__(self):
         if self.segments < 2:
