@@ -68,7 +68,7 @@ def warms_up(degrade: DegradeConfig) -> bool:
 
 
 def start(sensor: Sensor, degrade: DegradeConfig, frame: np.ndarray, t0: int, u: np.ndarray | None,
-          warmup_us: int, *, log: bool = False) -> None:
+          warmup_us: int, *, log: bool = False) -> bool:
     """Set the state of a fresh ``sensor`` as it is when a recording starts at ``t0``: the
     pixels have been running before. Their reference starts at a random point between the
     thresholds (:func:`randomize_reference`, ``u``; None: at the input), then, when
@@ -78,7 +78,7 @@ def start(sensor: Sensor, degrade: DegradeConfig, frame: np.ndarray, t0: int, u:
     under leak starts anywhere below its ON threshold, while one that has been running sits
     at its age since the last noise event or leak event (a truncated exponential under
     noise resets): in a recording shorter than 1 / leak the first leak events come from that
-    start alone."""
+    start alone. Returns whether it warmed up (events before ``t0`` may then follow)."""
     warm = warmup_us > 0 and warms_up(degrade)
     t_start = t0 - int(warmup_us) if warm else t0
     sensor.step(frame, np.array([t_start], np.int64), log=log)
@@ -87,6 +87,7 @@ def start(sensor: Sensor, degrade: DegradeConfig, frame: np.ndarray, t0: int, u:
     if warm:
         t = np.linspace(t_start, t0, max(2, -(-int(warmup_us) // WARMUP_STEP_US) + 1)).round().astype(np.int64)[1:]
         sensor.step(np.repeat(frame, t.size, axis=0), t, log=log)
+    return warm
 
 
 def simulate_random_start(images: np.ndarray, t_us: np.ndarray, sensor: SensorConfig, degrade: DegradeConfig,
@@ -100,10 +101,10 @@ def simulate_random_start(images: np.ndarray, t_us: np.ndarray, sensor: SensorCo
     n, h, w = images.shape
     s = Sensor(w, h, sensor, degrade, rng)
     t0 = int(t_us[0])
-    start(s, degrade, images[:1], t0, ref_rng.random((h, w)), warmup_us)
+    warm = start(s, degrade, images[:1], t0, ref_rng.random((h, w)), warmup_us)
     parts = [s.step(images[1:], t_us[1:]).array, s.flush().array]
     arr = sort_events(np.concatenate(parts))
-    if warmup_us > 0 and warms_up(degrade):
+    if warm:                     # jitter may hold warm-up events back past the first frame's step
         arr = arr[arr["t"] >= t0]
     return Events(arr, w, h, validate=False)
 
