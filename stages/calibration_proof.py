@@ -20,13 +20,15 @@ def main(args, params):
     interp = InterpolateConfig(max_upsample=cfg.max_upsample)
     # every block from a fresh default_rng(seed): rdnet reports in args.out, circuit in args.out/circuit
     todo = generator_blocks(args.out, generator=args.generator, quick=args.quick, cfg=cfg, interpolate=interp,
-                            circuit_oversample=args.circuit_oversample, truth_warmup_us=args.truth_warmup_us)
+                            circuit_oversample=args.circuit_oversample, truth_warmup_us=args.truth_warmup_us,
+                            truth_preroll_us=args.truth_preroll_us)
     rd = next((b for b in todo if b.key == "rdnet"), None)
     if rd is not None and args.oversample > 1:
         # the truth from frames rendered denser: the calibration's own interpolation is imperfect
         key = f"oversample{args.oversample}"
         todo.append(Block(key, rd.cases, args.out / key, dict(cfg=cfg, interpolate=interp, oversample=args.oversample,
-                                                              truth_warmup_us=args.truth_warmup_us)))
+                                                              truth_warmup_us=args.truth_warmup_us,
+                                                              truth_preroll_us=args.truth_preroll_us)))
     # the longest block (circuit) beside the two rdnet ones
     runs = run_blocks(todo, args.seed, workers=args.workers)
     blocks = {b.key: (b.out_dir, runs[b.key]) for b in todo}

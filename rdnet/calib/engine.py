@@ -58,27 +58,33 @@ def randomize_reference(sensor: Sensor, degrade: DegradeConfig, u: np.ndarray) -
 
 
 def warms_up(degrade: DegradeConfig) -> bool:
-    """Whether a simulation of ``degrade`` warms up before the recording: with leak, whose
-    phase in a static pixel (its drift since the last noise or leak event) decides when
-    that pixel's first leak event comes. Shot noise alone does not: a static pixel's
-    reference makes no event without leak, and on a pixel that moves in the recording a
-    noise reset before it would assume the scene was still then (tried: on the circuit
-    proof's 60 fps null a bandwidth or readout limit was then named)."""
-    return degrade.leak_hz > 0
+    """Whether a simulation of ``degrade`` warms up before the recording: with leak (the
+    phase of a static pixel, its drift since the last noise or leak event, decides when its
+    first leak event comes) or shot noise (whose events reset the pixel, so a static pixel
+    sits at its last reset, not at a random point). Without either a held frame changes
+    nothing."""
+    return degrade.leak_hz > 0 or degrade.shot_noise_hz > 0
 
 
 def start(sensor: Sensor, degrade: DegradeConfig, frame: np.ndarray, t0: int, u: np.ndarray | None,
-          warmup_us: int, *, log: bool = False) -> bool:
+          warmup_us: int, *, moving: np.ndarray | None = None, log: bool = False) -> bool:
     """Set the state of a fresh ``sensor`` as it is when a recording starts at ``t0``: the
     pixels have been running before. Their reference starts at a random point between the
     thresholds (:func:`randomize_reference`, ``u``; None: at the input), then, when
-    :func:`warms_up` (leak), they run for ``warmup_us`` on ``frame`` (1, H, W) held still, so
-    leak (the reference drifts) and shot noise (each event resets the pixel) bring every
-    static pixel to its stationary state; those events are dropped. Without the warm-up a static pixel
-    under leak starts anywhere below its ON threshold, while one that has been running sits
-    at its age since the last noise event or leak event (a truncated exponential under
-    noise resets): in a recording shorter than 1 / leak the first leak events come from that
-    start alone. Returns whether it warmed up (events before ``t0`` may then follow)."""
+    :func:`warms_up` (leak or shot noise), they run for ``warmup_us`` on ``frame`` (1, H, W)
+    held still, so leak (the reference drifts) and shot noise (each event resets the pixel)
+    bring every static pixel to its stationary state; those events are dropped. Without the
+    warm-up a static pixel under leak starts anywhere below its ON threshold, while one that
+    has been running sits at its age since the last noise or leak event (a truncated
+    exponential under noise resets): in a recording shorter than 1 / leak the first leak
+    events come from that start alone.
+
+    ``moving`` (H, W) bool: pixels whose scene moves in the recording. The scene did not
+    hold still for them before it (a noise reset during a held frame would put their
+    reference at that frame's level), so after the warm-up their reference is drawn
+    between the thresholds again from ``u`` (:func:`randomize_reference`, leak or not),
+    around the level the warm-up left (leak drift included). Returns whether it warmed up
+    (events before ``t0`` may then follow)."""
     warm = warmup_us > 0 and warms_up(degrade)
     t_start = t0 - int(warmup_us) if warm else t0
     sensor.step(frame, np.array([t_start], np.int64), log=log)
@@ -87,6 +93,11 @@ def start(sensor: Sensor, degrade: DegradeConfig, frame: np.ndarray, t0: int, u:
     if warm:
         t = np.linspace(t_start, t0, max(2, -(-int(warmup_us) // WARMUP_STEP_US) + 1)).round().astype(np.int64)[1:]
         sensor.step(np.repeat(frame, t.size, axis=0), t, log=log)
+        if moving is not None and u is not None:
+            if moving.shape != sensor.ref.shape:
+                raise ValueError(f"moving mask {moving.shape} does not match the sensor {sensor.ref.shape}")
+            m = np.asarray(moving, bool)
+            sensor.ref[m] = sensor.s_prev[m] + sensor.thr_off[m] - u[m] * (sensor.thr_on[m] + sensor.thr_off[m])
     return warm
 
 
@@ -128,7 +139,8 @@ class Engine:
     ``random_reference``: start every pixel's reference at a random point between its
     thresholds, drawn per seed (default ``ctx.cfg.random_reference``; see
     :meth:`kernel_events`). ``warmup_us``: how long the pixels run on the first frame held
-    still before the recording (default ``ctx.cfg.warmup_us``; :func:`start`)."""
+    still before the recording (default ``ctx.cfg.warmup_us``; :func:`start`; the moving
+    pixels' reference is drawn again after it)."""
 
     def __init__(self, ctx: CalibContext, cache_size: int = 24, random_reference: bool | None = None,
                  warmup_us: int | None = None):
@@ -136,6 +148,9 @@ class Engine:
         self.random_reference = bool(ctx.cfg.random_reference if random_reference is None else random_reference)
         self.warmup_us = int(ctx.cfg.warmup_us if warmup_us is None else warmup_us)
         self._ref_u = {}
+        #: pixels whose scene moves in the recording (not ``ctx.static``): their reference is
+        #: drawn again after a warm-up (:func:`start`)
+        self.moving = ~np.asarray(ctx.static, bool)
         self.lin = np.ascontiguousarray(ctx.sim_images, dtype=np.float32)
         self.t = np.ascontiguousarray(ctx.sim_t, dtype=np.int64)
         self._log = None
@@ -170,11 +185,12 @@ class Engine:
     def kernel_events(self, sensor: SensorConfig, degrade: DegradeConfig, seed: int) -> np.ndarray:
         """Time-sorted events of the pixel circuit alone (additive effects off). With
         ``random_reference`` every pixel's reference starts at a random point between its
-        thresholds (:func:`randomize_reference`, u ~ U[0, 1) per pixel and seed); with leak
-        the pixels then warm up on the first frame (:func:`start`)."""
+        thresholds (:func:`randomize_reference`, u ~ U[0, 1) per pixel and seed; with leak the
+        sensor's own leak phase instead); with leak or shot noise the pixels then warm up on
+        the first frame and the moving ones are drawn between the thresholds again
+        (:func:`start`)."""
         kd = _kernel_degrade(degrade)
-        rand_ref = self.random_reference and kd.leak_hz <= 0
-        rnd = effects.needs_rng(kd) or rand_ref
+        rnd = effects.needs_rng(kd) or self.random_reference
         key = (kernel_key(sensor, degrade), seed if rnd else None)
         hit = self._cache.get(key)
         if hit is not None:
@@ -184,8 +200,8 @@ class Engine:
         h, w = self.lin.shape[1:]
         s = Sensor(w, h, sensor, kd, rng)
         # the first frame sets the state (linear, as simulate), then the warm-up on it
-        start(s, kd, self.lin[:1], int(self.t[0]), self.reference_phase(seed) if rand_ref else None,
-              self.warmup_us)
+        start(s, kd, self.lin[:1], int(self.t[0]), self.reference_phase(seed) if self.random_reference else None,
+              self.warmup_us, moving=self.moving)
         if kd.cutoff_hz > 0:                       # the low-pass needs the linear intensity too
             ev = s.step(self.lin[1:], self.t[1:], log_frames=self.log_frames(sensor.log_eps)[1:])
         else:

@@ -166,34 +166,54 @@ def cases_for(generator: str = "both", quick: bool = False) -> dict[str, tuple[P
     return out
 
 
-#: how long the sensor of a "real" recording has been running on its first frame before the
-#: recording starts (both generators; the calibration assumes ``calibrate.warmup_us``)
-TRUTH_WARMUP_US = 0   # 5_000_000 in the README's warm-up runs (--truth-warmup-us)
+#: how long the sensor of a "real" recording has been running on a still scene before the
+#: scene starts to move (both generators; the calibration assumes ``calibrate.warmup_us``)
+TRUTH_WARMUP_US = 0   # 5_000_000 in the README's stationary-truth runs (--truth-warmup-us)
+#: how long the scene has been moving before the recording starts (the true sensor sees
+#: it; the calibration gets the frames from t = 0 only)
+TRUTH_PREROLL_US = 0   # 500_000 in the README's stationary-truth runs (--truth-preroll-us)
+
+
+def _recorded(events):
+    """The events from t = 0 on (a pre-roll's and a warm-up's are not recorded)."""
+    t = events.t
+    return events.select(t >= 0) if t.size and bool((t < 0).any()) else events
 
 
 def _truth_events(frames, sensor, degrade, seed, warmup_us=TRUTH_WARMUP_US):
     """The "real" events: the simulator with every pixel started at a random point between
-    its thresholds and warmed up for ``warmup_us`` on the first frame (a recording starts
-    from a running sensor, in an unknown pixel state), the same draws for every config of
-    one case (``seed``)."""
+    its thresholds and warmed up for ``warmup_us`` on the first frame (a sensor running
+    before the scene moves, in an unknown pixel state), the same draws for every config of
+    one case (``seed``); only those from t = 0 on (``frames`` may start before: a pre-roll)."""
     if frames.images.ndim != 3:
         return default_simulate(frames.images, frames.t_us, sensor, degrade, np.random.default_rng(seed))
-    return simulate_random_start(frames.images, frames.t_us, sensor, degrade, np.random.default_rng(seed),
-                                 np.random.default_rng([seed, 7]), warmup_us=warmup_us)
+    return _recorded(simulate_random_start(frames.images, frames.t_us, sensor, degrade, np.random.default_rng(seed),
+                                           np.random.default_rng([seed, 7]), warmup_us=warmup_us))
 
 
 def _circuit_events(frames, sensor, degrade, seed, extra=(), warmup_us=TRUTH_WARMUP_US):
     """The "real" events from the independent circuit model (:mod:`rdnet.circuit`), its
-    array warmed up for ``warmup_us`` on the first frame when the truth has leak (the rule
-    of :func:`rdnet.calib.engine.warms_up`, so that both generators start alike)."""
+    array warmed up for ``warmup_us`` on the first frame when the truth has leak or shot
+    noise (the rule of :func:`rdnet.calib.engine.warms_up`, so that both generators start
+    alike); only those from t = 0 on."""
     from rdnet.circuit import from_degrade, generate
-    return generate(frames.images, frames.t_us, from_degrade(sensor, degrade, **dict(extra)),
-                    np.random.default_rng(seed), random_start=True, warmup_us=warmup_us if warms_up(degrade) else 0.0)
+    return _recorded(generate(frames.images, frames.t_us, from_degrade(sensor, degrade, **dict(extra)),
+                              np.random.default_rng(seed), random_start=True,
+                              warmup_us=warmup_us if warms_up(degrade) else 0.0))
+
+
+def _from_zero(frames: Frames) -> Frames:
+    """The frames from t = 0 on (the recorded ones of a pre-rolled rendering)."""
+    k = int(np.searchsorted(frames.t_us, 0))
+    if k == 0:
+        return frames
+    return Frames(frames.images[k:], frames.t_us[k:], frames.exposure_us[k:])
 
 
 def make_recording(case: ProofCase, spec: SceneSpec, sensor: SensorConfig, rng: np.random.Generator,
                    oversample: int = 1, interpolate=None, circuit_oversample: int = 4,
-                   truth_warmup_us: float = TRUTH_WARMUP_US) -> tuple[Recording, dict]:
+                   truth_warmup_us: float = TRUTH_WARMUP_US,
+                   truth_preroll_us: int = TRUTH_PREROLL_US) -> tuple[Recording, dict]:
     """The concealed recording of ``case`` and the truth: ``{"degrade": {...},
     "threshold_scale": s, "base_count": n, "count": n, "uncompensated_count": n}`` (and
     ``"circuit"``: the full circuit parameters, for a circuit case).
@@ -202,19 +222,22 @@ def make_recording(case: ProofCase, spec: SceneSpec, sensor: SensorConfig, rng: 
     times denser than the recorded ones (the calibration must then also absorb its own
     interpolation error); 1: from the recorded frames upsampled exactly as the calibration
     will (``interpolate``), so the only difference is the concealed effect (and the
-    warm-up: the truth's sensor has run ``truth_warmup_us`` on the first frame). Circuit
+    start: the truth's sensor has seen the scene move for ``truth_preroll_us`` before the
+    recording, after running ``truth_warmup_us`` on its first frame held still). Circuit
     generator: always from frames rendered ``circuit_oversample`` times denser (the circuit
     interpolates linearly between them and integrates in sub-steps)."""
     spec = dataclasses.replace(spec, motion=case.motion, **dict(case.scene))
-    frames, tex = render(spec, rng)
+    pre = int(truth_preroll_us)
+    rolled, tex = render(spec, rng, preroll_us=pre)
+    frames = _from_zero(rolled)
     circuit = case.generator == "circuit"
     if circuit:
-        fine, _ = render(spec, rng, fps_hz=spec.fps_hz * circuit_oversample, texture=tex)
+        fine, _ = render(spec, rng, fps_hz=spec.fps_hz * circuit_oversample, texture=tex, preroll_us=pre)
     elif oversample > 1:
-        fine, _ = render(spec, rng, fps_hz=spec.fps_hz * oversample, texture=tex)
+        fine, _ = render(spec, rng, fps_hz=spec.fps_hz * oversample, texture=tex, preroll_us=pre)
     else:
         from rdnet.sim.interpolate import InterpolateConfig, upsample_all
-        im, t = upsample_all(frames.images, frames.t_us, interpolate or InterpolateConfig(), sensor.log_eps)
+        im, t = upsample_all(rolled.images, rolled.t_us, interpolate or InterpolateConfig(), sensor.log_eps)
         fine = Frames(im, t, np.zeros(len(t), np.int64))
     seed = int(rng.integers(1 << 30)) + 10_000_000          # never one of the calibration seeds
     if circuit:
@@ -307,18 +330,20 @@ def case_metrics(case: ProofCase, report: dict, truth: dict) -> dict:
 def run_proof(cases: Sequence[ProofCase] | None, out_dir: str | Path | None, rng: np.random.Generator, *,
               spec: SceneSpec = SceneSpec(), sensor: SensorConfig = SensorConfig(),
               cfg: CalibrateConfig = CalibrateConfig(), oversample: int = 1, interpolate=None,
-              seed: int = 0, circuit_oversample: int = 4, truth_warmup_us: float = TRUTH_WARMUP_US) -> dict:
+              seed: int = 0, circuit_oversample: int = 4, truth_warmup_us: float = TRUTH_WARMUP_US,
+              truth_preroll_us: int = TRUTH_PREROLL_US) -> dict:
     """Run the calibration blind on every case; write each case's report under
     ``out_dir/<case>/`` (when given) and return ``{"cases": [...], "summary": {...}}``.
     ``truth_warmup_us``: how long the true sensor runs on the first frame before the
-    recording (:data:`TRUTH_WARMUP_US`)."""
+    scene moves (:data:`TRUTH_WARMUP_US`); ``truth_preroll_us``: how long the scene moves
+    before the recording (:data:`TRUTH_PREROLL_US`)."""
     from rdnet.calib.report import write_json, write_report
     cases = CASES if cases is None else cases
     results = []
     for case in cases:
         with numba_threads(cfg.threads):
             rec, truth = make_recording(case, spec, sensor, rng, oversample, interpolate, circuit_oversample,
-                                        truth_warmup_us)
+                                        truth_warmup_us, truth_preroll_us)
         log.info("proof case %s: truth %s", case.name, truth)
         cal = calibrate(rec, sensor, DegradeConfig(**case.base), cfg, seed=seed, interpolate=interpolate,
                         source=f"proof:{case.name}")
@@ -413,7 +438,9 @@ def add_proof_arguments(ap) -> None:
                     help="model of the true events")
     ap.add_argument("--quick", action="store_true", help=f"only the subset {', '.join(QUICK)}")
     ap.add_argument("--truth-warmup-us", type=float, default=TRUTH_WARMUP_US,
-                    help="the true sensor runs this long on the first frame before the recording (0: off)")
+                    help="the true sensor runs this long on the first frame held still before the scene moves (0: off)")
+    ap.add_argument("--truth-preroll-us", type=int, default=TRUTH_PREROLL_US,
+                    help="the scene moves this long before the recording starts (the true sensor sees it)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -429,11 +456,15 @@ def main(argv: list[str] | None = None) -> int:
                     help="rdnet truth from frames this many times denser (1: same)")
     ap.add_argument("--cases", nargs="*", default=None, help="case names (default: all of the generator)")
     ap.add_argument("--max-upsample", type=int, default=16, help="interpolate.max_upsample of the scenes")
+    ap.add_argument("--warmup-us", type=int, default=None,
+                    help="calibrate.warmup_us of the calibration (default: CalibrateConfig's)")
     args = ap.parse_args(argv)
+    cfg = CalibrateConfig() if args.warmup_us is None else CalibrateConfig(warmup_us=args.warmup_us)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     runs = run_generators(args.out, args.seed, generator=args.generator, quick=args.quick, names=args.cases,
-                          oversample=args.oversample, interpolate=InterpolateConfig(max_upsample=args.max_upsample),
-                          circuit_oversample=args.circuit_oversample, truth_warmup_us=args.truth_warmup_us)
+                          oversample=args.oversample, interpolate=InterpolateConfig(max_upsample=args.max_upsample), cfg=cfg,
+                          circuit_oversample=args.circuit_oversample, truth_warmup_us=args.truth_warmup_us,
+                          truth_preroll_us=args.truth_preroll_us)
     for gen, m in runs.items():
         print(f"generator {gen}:")
         print(format_table(m))

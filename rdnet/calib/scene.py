@@ -60,13 +60,18 @@ def position(spec: SceneSpec, t_s: np.ndarray) -> np.ndarray:
 
 
 def render(spec: SceneSpec, rng: np.random.Generator, fps_hz: float | None = None,
-           texture: np.ndarray | None = None) -> tuple[Frames, np.ndarray]:
+           texture: np.ndarray | None = None, preroll_us: int = 0) -> tuple[Frames, np.ndarray]:
     """Frames (float32 linear) at ``fps_hz`` (default ``spec.fps_hz``) and the texture used
-    (pass it back to render the same scene at another rate)."""
+    (pass it back to render the same scene at another rate). ``preroll_us``: also the
+    frames of the scene before t = 0, from about ``-preroll_us`` (a whole number of frame
+    periods, so a frame falls on t = 0 and the frames from there on are the same as
+    without it)."""
     H, W = spec.height, spec.width
     fps = spec.fps_hz if fps_hz is None else fps_hz
     n = int(round(spec.duration_us * 1e-6 * fps)) + 1
-    t_us = np.rint(np.arange(n) * 1e6 / fps).astype(np.int64)
+    n_pre = int(round(preroll_us * 1e-6 * fps))
+    n += n_pre
+    t_us = np.rint((np.arange(n) - n_pre) * 1e6 / fps).astype(np.int64)
     if texture is None:
         texture = _texture(H, 2 * W, spec.texture_px, spec.contrast[0], spec.contrast[1], rng)
     TW = texture.shape[1]

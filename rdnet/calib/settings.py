@@ -60,11 +60,13 @@ class CalibrateConfig:
     random point between its OFF and ON thresholds (the unknown state at recording start)
     instead of at the first frame, so even a deterministic pixel model has an honest seed
     spread; off = the simulator's own start (seed-independent for deterministic configs).
-    ``warmup_us``: with leak, every simulation first runs the pixels this long
-    on the first frame held still and drops those events (:func:`rdnet.calib.engine.start`):
-    a real recording starts from a sensor that has been running, whose static pixels sit
-    where leak drift and noise resets left them (0, the default = start at the reference
-    above; README "The warm-up" has what 3 s did on the proof).
+    ``warmup_us``: with leak or shot noise, every simulation first runs the pixels this
+    long on the first frame held still and drops those events, then draws the reference of
+    the pixels that move in the recording between the thresholds again
+    (:func:`rdnet.calib.engine.start`): a real recording starts from a sensor that has been
+    running, whose static pixels sit where leak drift and noise resets left them (0, the
+    default = start at the reference above; README "The warm-up" has what 3 s did on the
+    proof).
     """
 
     segments: int = 6

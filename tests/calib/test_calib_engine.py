@@ -172,19 +172,47 @@ def test_gather_sorts_each_step_stably(scale):
     assert [(int(e["t"]), int(e["x"]), int(e["y"])) for e in out] == [(a * scale, b, c) for a, b, c in want]
 
 
-def test_warm_up_runs_only_configs_with_leak(ctx):
-    """The warm-up on the held first frame (rdnet.calib.engine.start) runs only with leak:
-    any other config, shot noise included, gives the same events with or without it, and
-    events before the recording's first frame are dropped. (Its known answer, the
-    stationary leak rate under noise resets, is tested against the circuit model in
-    tests/circuit.)"""
+def test_warm_up_runs_only_configs_with_leak_or_shot_noise(ctx):
+    """The warm-up on the held first frame (rdnet.calib.engine.start) runs only with leak
+    or shot noise: any other config gives the same events with or without it, and events
+    before the recording's first frame are dropped. (Its known answers: the stationary leak
+    rate under noise resets, tested against the circuit model in tests/circuit, and the
+    state it leaves, below.)"""
     cold, warm = Engine(ctx, warmup_us=0), Engine(ctx, warmup_us=3_000_000)
-    for det in (DegradeConfig(refractory_us=2000.0, threshold_sigma=0.1), DegradeConfig(shot_noise_hz=2.0)):
-        assert np.array_equal(cold.events(SENSOR, det, 1).array, warm.events(SENSOR, det, 1).array)
-    noisy = DegradeConfig(leak_hz=1.0, shot_noise_hz=1.0)
-    a, b = cold.events(SENSOR, noisy, 1).array, warm.events(SENSOR, noisy, 1).array
-    assert not np.array_equal(a, b)
-    assert b["t"].min() >= ctx.sim_t[0]
+    det = DegradeConfig(refractory_us=2000.0, threshold_sigma=0.1)
+    assert np.array_equal(cold.events(SENSOR, det, 1).array, warm.events(SENSOR, det, 1).array)
+    for noisy in (DegradeConfig(shot_noise_hz=2.0), DegradeConfig(leak_hz=1.0, shot_noise_hz=1.0)):
+        a, b = cold.events(SENSOR, noisy, 1).array, warm.events(SENSOR, noisy, 1).array
+        assert not np.array_equal(a, b)
+        assert b["t"].min() >= ctx.sim_t[0]
+
+
+def test_warm_up_leaves_static_pixels_at_their_last_reset_and_redraws_moving_ones():
+    """The state rdnet.calib.engine.start leaves on a still frame under shot noise alone:
+    after 20 s at 2 Hz every pixel has fired a noise event (all but e^-40 of them), which
+    set its reference to its constant level, so ref == S for the static pixels. The pixels
+    that move in the recording did not see a still scene before it, so their reference is
+    drawn between the thresholds again: S - ref = u (theta_on + theta_off) - theta_off."""
+    from rdnet.calib.engine import start
+    from rdnet.sim.sensor import Sensor
+    h, w = 8, 16
+    frame = np.full((1, h, w), 0.3, np.float32)
+    deg = DegradeConfig(shot_noise_hz=2.0)
+    u = np.random.default_rng(1).random((h, w))
+    moving = np.zeros((h, w), bool)
+    moving[:, :5] = True
+    states = {}
+    for name, mask in (("masked", moving), ("unmasked", None)):
+        s = Sensor(w, h, SENSOR, deg, np.random.default_rng(0))
+        assert start(s, deg, frame, 0, u, 20_000_000, moving=mask)
+        states[name] = (s.s_prev.copy(), s.ref.copy(), s.thr_on, s.thr_off)
+    level, ref, on, off = states["masked"]
+    np.testing.assert_allclose(ref[~moving], level[~moving], rtol=0, atol=1e-12)
+    np.testing.assert_allclose((level - ref)[moving], (u * (on + off) - off)[moving], rtol=0, atol=1e-12)
+    level_u, ref_u = states["unmasked"][:2]
+    np.testing.assert_allclose(ref_u, level_u, rtol=0, atol=1e-12)   # without the mask: all at a reset
+    # and the spread the redraw restores is the full interval between the thresholds
+    assert (level - ref)[moving].min() < -0.5 * off[0, 0] and (level - ref)[moving].max() > 0.5 * on[0, 0]
 
 
 def test_warm_up_must_not_be_negative():

@@ -117,3 +117,37 @@ def test_run_blocks_in_processes_equals_serial(monkeypatch, tmp_path):
     assert strip == {k: {f: v for f, v in m.items() if f != "pid"} for k, m in serial.items()}
     assert {m["pid"] for m in parallel.values()} != {os.getpid()}      # ran in the workers
     assert len({m["draw"] for m in parallel.values()}) == 1              # every block: default_rng(5)
+
+
+def test_preroll_adds_frames_before_zero_and_keeps_the_recorded_ones():
+    """render(preroll_us=): the frames from t = 0 on are those of a rendering without it
+    (bit for bit), a frame falls on t = 0, and the scene already moves before it."""
+    from rdnet.calib.scene import render
+    for fps in (100.0, 60.0, 400.0):
+        plain, tex = render(SPEC, np.random.default_rng(7), fps_hz=fps)
+        rolled, _ = render(SPEC, np.random.default_rng(7), fps_hz=fps, texture=tex, preroll_us=500_000)
+        k = int(np.searchsorted(rolled.t_us, 0))
+        assert rolled.t_us[k] == 0 and k == round(0.5 * fps)
+        assert np.array_equal(rolled.t_us[k:], plain.t_us)
+        assert np.array_equal(rolled.images[k:], plain.images)
+        assert abs(int(rolled.t_us[0]) + 500_000) <= 1e6 / fps
+        assert np.abs(np.diff(rolled.images[:k], axis=0)).max() > 0.05      # moving before t = 0
+
+
+@pytest.mark.parametrize("generator", ["rdnet", "circuit"])
+def test_truth_with_preroll_and_warm_up_records_from_zero(generator):
+    """With a pre-roll and a warm-up (rdnet.calib.proof.make_recording) the recording holds
+    the frames from t = 0 and only the events from t = 0; the true sensor saw the scene
+    before, so its events differ from a cold start's, and the count is still matched."""
+    case = ProofCase("c", "leak_events", {"shot_noise_hz": 1.0}, {"shot_noise_hz": 1.0, "leak_hz": 1.5},
+                     compensate="shot_noise_hz", generator=generator)
+    interp = InterpolateConfig(method="linear", max_upsample=4)
+    kw = dict(truth_warmup_us=2_000_000, truth_preroll_us=200_000)
+    rec, truth = make_recording(case, SPEC, SensorConfig(), np.random.default_rng(6), 1, interp, **kw)
+    cold, _ = make_recording(case, SPEC, SensorConfig(), np.random.default_rng(6), 1, interp,
+                             truth_warmup_us=0, truth_preroll_us=0)
+    assert rec.frames.t_us[0] == 0 and len(rec.frames.t_us) == 31
+    assert np.array_equal(rec.frames.images, cold.frames.images)
+    assert int(rec.events.t.min()) >= 0 and len(rec.events) == truth["count"]
+    assert abs(truth["count"] - truth["base_count"]) <= 0.02 * truth["base_count"]
+    assert rec.events.array.tobytes() != cold.events.array.tobytes()
