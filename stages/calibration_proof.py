@@ -29,7 +29,7 @@ def main(args, params):
         todo.append(Block(key, rd.cases, args.out / key, dict(cfg=cfg, interpolate=interp, oversample=args.oversample,
                                                               truth_warmup_us=args.truth_warmup_us,
                                                               truth_preroll_us=args.truth_preroll_us)))
-    # the longest block (circuit) beside the two rdnet ones
+    # the cases of all blocks share the workers, the slow circuit cases first
     runs = run_blocks(todo, args.seed, workers=args.workers)
     blocks = {b.key: (b.out_dir, runs[b.key]) for b in todo}
     compact = {}
@@ -62,7 +62,7 @@ def _parser():
     p.add_argument("--oversample", type=int, default=4,
                    help="also run the rdnet proof with the truth from frames this many times denser (1: skip)")
     p.add_argument("--workers", type=int, default=2,
-                   help="blocks run at once, one process each (results do not depend on it)")
+                   help="cases run at once, one process each (results do not depend on it)")
     p.add_argument("--out", type=Path, default=Path("results/calibration/proof"))
     p.add_argument("--metrics", type=Path, default=Path("metrics/calibration_proof.json"))
     return p

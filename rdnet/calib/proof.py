@@ -44,7 +44,7 @@ from rdnet.calib.calibrate import calibrate, numba_threads
 from rdnet.calib.effects import EFFECTS, apply
 from rdnet.calib.engine import simulate_random_start, warms_up
 from rdnet.calib.fit import default_simulate
-from rdnet.calib.scene import SceneSpec, render
+from rdnet.calib.scene import SceneSpec, draw_texture, render
 from rdnet.calib.settings import CalibrateConfig
 from rdnet.errors import ValidationError
 from rdnet.events.recording import Frames, Recording
@@ -210,10 +210,25 @@ def _from_zero(frames: Frames) -> Frames:
     return Frames(frames.images[k:], frames.t_us[k:], frames.exposure_us[k:])
 
 
-def make_recording(case: ProofCase, spec: SceneSpec, sensor: SensorConfig, rng: np.random.Generator,
+def case_spec(case: ProofCase, spec: SceneSpec) -> SceneSpec:
+    """The scene of ``case``: ``spec`` with the case's motion and scene overrides."""
+    return dataclasses.replace(spec, motion=case.motion, **dict(case.scene))
+
+
+def case_draws(case: ProofCase, spec: SceneSpec, rng: np.random.Generator) -> tuple[np.ndarray, int]:
+    """The random draws of one case, in the order :func:`make_recording` takes them: the
+    scene's texture, then the seed of the true events (above every calibration seed).
+    They are all a case takes from ``rng``, so :func:`run_proof` draws them for every case
+    first and the cases can then run in any order, or process, with a serial run's results."""
+    tex = draw_texture(case_spec(case, spec), rng)
+    return tex, int(rng.integers(1 << 30)) + 10_000_000
+
+
+def make_recording(case: ProofCase, spec: SceneSpec, sensor: SensorConfig, rng: np.random.Generator | None,
                    oversample: int = 1, interpolate=None, circuit_oversample: int = 4,
                    truth_warmup_us: float = TRUTH_WARMUP_US,
-                   truth_preroll_us: int = TRUTH_PREROLL_US) -> tuple[Recording, dict]:
+                   truth_preroll_us: int = TRUTH_PREROLL_US,
+                   draws: tuple[np.ndarray, int] | None = None) -> tuple[Recording, dict]:
     """The concealed recording of ``case`` and the truth: ``{"degrade": {...},
     "threshold_scale": s, "base_count": n, "count": n, "uncompensated_count": n}`` (and
     ``"circuit"``: the full circuit parameters, for a circuit case).
@@ -225,10 +240,12 @@ def make_recording(case: ProofCase, spec: SceneSpec, sensor: SensorConfig, rng: 
     start: the truth's sensor has seen the scene move for ``truth_preroll_us`` before the
     recording, after running ``truth_warmup_us`` on its first frame held still). Circuit
     generator: always from frames rendered ``circuit_oversample`` times denser (the circuit
-    interpolates linearly between them and integrates in sub-steps)."""
-    spec = dataclasses.replace(spec, motion=case.motion, **dict(case.scene))
+    interpolates linearly between them and integrates in sub-steps). ``draws``: the case's
+    :func:`case_draws` (taken from ``rng`` when None)."""
+    tex, seed = case_draws(case, spec, rng) if draws is None else draws
+    spec = case_spec(case, spec)
     pre = int(truth_preroll_us)
-    rolled, tex = render(spec, rng, preroll_us=pre)
+    rolled, _ = render(spec, rng, texture=tex, preroll_us=pre)
     frames = _from_zero(rolled)
     circuit = case.generator == "circuit"
     if circuit:
@@ -239,7 +256,6 @@ def make_recording(case: ProofCase, spec: SceneSpec, sensor: SensorConfig, rng: 
         from rdnet.sim.interpolate import InterpolateConfig, upsample_all
         im, t = upsample_all(rolled.images, rolled.t_us, interpolate or InterpolateConfig(), sensor.log_eps)
         fine = Frames(im, t, np.zeros(len(t), np.int64))
-    seed = int(rng.integers(1 << 30)) + 10_000_000          # never one of the calibration seeds
     if circuit:
         def events_of(s_, d_):
             return _circuit_events(fine, s_, d_, seed, case.circuit, truth_warmup_us)
@@ -327,33 +343,34 @@ def case_metrics(case: ProofCase, report: dict, truth: dict) -> dict:
     return out
 
 
-def run_proof(cases: Sequence[ProofCase] | None, out_dir: str | Path | None, rng: np.random.Generator, *,
-              spec: SceneSpec = SceneSpec(), sensor: SensorConfig = SensorConfig(),
-              cfg: CalibrateConfig = CalibrateConfig(), oversample: int = 1, interpolate=None,
-              seed: int = 0, circuit_oversample: int = 4, truth_warmup_us: float = TRUTH_WARMUP_US,
-              truth_preroll_us: int = TRUTH_PREROLL_US) -> dict:
-    """Run the calibration blind on every case; write each case's report under
-    ``out_dir/<case>/`` (when given) and return ``{"cases": [...], "summary": {...}}``.
-    ``truth_warmup_us``: how long the true sensor runs on the first frame before the
-    scene moves (:data:`TRUTH_WARMUP_US`); ``truth_preroll_us``: how long the scene moves
-    before the recording (:data:`TRUTH_PREROLL_US`)."""
-    from rdnet.calib.report import write_json, write_report
-    cases = CASES if cases is None else cases
-    results = []
-    for case in cases:
-        with numba_threads(cfg.threads):
-            rec, truth = make_recording(case, spec, sensor, rng, oversample, interpolate, circuit_oversample,
-                                        truth_warmup_us, truth_preroll_us)
-        log.info("proof case %s: truth %s", case.name, truth)
-        cal = calibrate(rec, sensor, DegradeConfig(**case.base), cfg, seed=seed, interpolate=interpolate,
-                        source=f"proof:{case.name}")
-        if out_dir is not None:
-            write_report(cal, Path(out_dir) / case.name)
-        m = case_metrics(case, cal.report, truth)
-        m["runtime_s"] = cal.runtime_s
-        results.append(m)
-        log.info("proof case %s: named %s (rank of truth %s), held-out %.3f -> %.3f", case.name,
-                 m["named"], m["rank"], m["heldout_before"], m["heldout_after"])
+def run_case(case: ProofCase, draws: tuple[np.ndarray, int], out_dir: str | Path | None, *,
+             spec: SceneSpec = SceneSpec(), sensor: SensorConfig = SensorConfig(),
+             cfg: CalibrateConfig = CalibrateConfig(), oversample: int = 1, interpolate=None,
+             seed: int = 0, circuit_oversample: int = 4, truth_warmup_us: float = TRUTH_WARMUP_US,
+             truth_preroll_us: int = TRUTH_PREROLL_US) -> dict:
+    """One case of :func:`run_proof` from its :func:`case_draws`: the concealed recording,
+    the calibration run blind on it (report under ``out_dir/<case>/`` when given), and the
+    case's metrics (:func:`case_metrics`, with the calibration's ``runtime_s``)."""
+    from rdnet.calib.report import write_report
+    with numba_threads(cfg.threads):
+        rec, truth = make_recording(case, spec, sensor, None, oversample, interpolate, circuit_oversample,
+                                    truth_warmup_us, truth_preroll_us, draws=draws)
+    log.info("proof case %s: truth %s", case.name, truth)
+    cal = calibrate(rec, sensor, DegradeConfig(**case.base), cfg, seed=seed, interpolate=interpolate,
+                    source=f"proof:{case.name}")
+    if out_dir is not None:
+        write_report(cal, Path(out_dir) / case.name)
+    m = case_metrics(case, cal.report, truth)
+    m["runtime_s"] = cal.runtime_s
+    log.info("proof case %s: named %s (rank of truth %s), held-out %.3f -> %.3f", case.name,
+             m["named"], m["rank"], m["heldout_before"], m["heldout_after"])
+    return m
+
+
+def proof_metrics(results: list[dict], out_dir: str | Path | None) -> dict:
+    """``{"cases": results, "summary": {...}}`` of a list of :func:`run_case` results
+    (written to ``out_dir/proof.json`` when given)."""
+    from rdnet.calib.report import write_json
     conc = [r for r in results if r["true_effect"]]
     null = [r for r in results if not r["true_effect"]]
     summary = {
@@ -367,10 +384,25 @@ def run_proof(cases: Sequence[ProofCase] | None, out_dir: str | Path | None, rng
         "null_cases": len(null),
         "null_named_nothing": sum(not r["named"] for r in null),
     }
-    metrics = {"cases": results, "summary": summary}
+    metrics = {"cases": list(results), "summary": summary}
     if out_dir is not None:
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
         write_json(Path(out_dir) / "proof.json", metrics)
     return metrics
+
+
+def run_proof(cases: Sequence[ProofCase] | None, out_dir: str | Path | None, rng: np.random.Generator, *,
+              spec: SceneSpec = SceneSpec(), **kw) -> dict:
+    """Run the calibration blind on every case (:func:`run_case`; ``kw``: its settings:
+    ``sensor``, ``cfg``, ``oversample``, ``interpolate``, ``seed`` (of the calibration),
+    ``circuit_oversample``, ``truth_warmup_us`` (how long the true sensor runs on the first
+    frame before the scene moves, :data:`TRUTH_WARMUP_US`), ``truth_preroll_us`` (how long
+    the scene moves before the recording, :data:`TRUTH_PREROLL_US`)); write each case's
+    report under ``out_dir/<case>/`` (when given) and return :func:`proof_metrics`. Every
+    case's draws are taken from ``rng`` first (:func:`case_draws`)."""
+    cases = CASES if cases is None else cases
+    draws = [case_draws(c, spec, rng) for c in cases]
+    return proof_metrics([run_case(c, d, out_dir, spec=spec, **kw) for c, d in zip(cases, draws)], out_dir)
 
 
 def generator_dir(out_dir: str | Path, generator: str) -> Path:
@@ -391,21 +423,35 @@ class Block:
     kw: dict = field(default_factory=dict)
 
 
-def _run_block(block: Block, seed: int) -> tuple[str, dict]:
-    return block.key, run_proof(list(block.cases), block.out_dir, np.random.default_rng(seed), **block.kw)
+def _run_job(job: tuple) -> dict:
+    block, case, draws = job
+    return run_case(case, draws, block.out_dir, **block.kw)
 
 
 def run_blocks(blocks: Sequence[Block], seed: int, workers: int = 1) -> dict[str, dict]:
-    """:func:`run_proof` of every block, in ``workers`` processes (each block is independent
-    and starts from its own generator, so the results equal a serial run's); returns
-    ``{block.key: metrics}`` in the order of ``blocks``."""
-    if workers <= 1 or len(blocks) <= 1:
-        return dict(_run_block(b, seed) for b in blocks)
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-    with ProcessPoolExecutor(max_workers=min(workers, len(blocks)), mp_context=mp.get_context("fork")) as ex:
-        futures = [ex.submit(_run_block, b, seed) for b in blocks]
-        return dict(f.result() for f in futures)
+    """:func:`run_proof` of every block, each from its own ``default_rng(seed)``; returns
+    ``{block.key: metrics}`` in the order of ``blocks``. The cases of all blocks run in
+    ``workers`` processes, the slow circuit cases first (each case's draws are taken in
+    the block's order beforehand, :func:`case_draws`, so the results equal a serial run's)."""
+    jobs = []
+    for b in blocks:
+        rng = np.random.default_rng(seed)
+        spec = b.kw.get("spec", SceneSpec())
+        jobs += [(b, c, case_draws(c, spec, rng)) for c in b.cases]
+    if workers <= 1 or len(jobs) <= 1:
+        rows = [_run_job(j) for j in jobs]
+    else:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+        first = sorted(range(len(jobs)), key=lambda i: jobs[i][1].generator != "circuit")   # stable
+        with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=mp.get_context("fork")) as ex:
+            futures = {i: ex.submit(_run_job, jobs[i]) for i in first}
+            rows = [futures[i].result() for i in range(len(jobs))]
+    out, k = {}, 0
+    for b in blocks:
+        out[b.key] = proof_metrics(rows[k:k + len(b.cases)], b.out_dir)
+        k += len(b.cases)
+    return out
 
 
 def generator_blocks(out_dir: str | Path | None, *, generator: str = "both", quick: bool = False,

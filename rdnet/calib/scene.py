@@ -45,6 +45,12 @@ def _texture(h: int, w: int, sigma: float, lo: float, hi: float, rng: np.random.
     return (lo + (hi - lo) * sm).astype(np.float32)
 
 
+def draw_texture(spec: SceneSpec, rng: np.random.Generator) -> np.ndarray:
+    """The scene's periodic texture ((H, 2W) float32), the one random draw of :func:`render`
+    (pass it back to render the same scene again, at any rate)."""
+    return _texture(spec.height, 2 * spec.width, spec.texture_px, spec.contrast[0], spec.contrast[1], rng)
+
+
 def position(spec: SceneSpec, t_s: np.ndarray) -> np.ndarray:
     """Horizontal texture offset (pixels) at times ``t_s``."""
     w = 2 * np.pi / spec.period_s
@@ -73,7 +79,7 @@ def render(spec: SceneSpec, rng: np.random.Generator, fps_hz: float | None = Non
     n += n_pre
     t_us = np.rint((np.arange(n) - n_pre) * 1e6 / fps).astype(np.int64)
     if texture is None:
-        texture = _texture(H, 2 * W, spec.texture_px, spec.contrast[0], spec.contrast[1], rng)
+        texture = draw_texture(spec, rng)
     TW = texture.shape[1]
     gain = np.ones((H, W), np.float32)
     gain[:, : W // 2] = spec.dark_gain

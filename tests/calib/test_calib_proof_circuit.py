@@ -73,50 +73,80 @@ def test_same_case_same_recording():
     assert a.events.array.tobytes() == b.events.array.tobytes()
 
 
+def _fake_row(case, draws, out_dir, **kw):
+    """A stand-in for rdnet.calib.proof.run_case: the row proof_metrics needs, with what it got."""
+    import os
+    return {"case": case.name, "true_effect": None, "named": [], "outcome": "right (none)", "rank": None,
+            "heldout_ratio": 1.0, "heldout_excess_ratio": 1.0, "seed": draws[1], "texture_sum": float(draws[0].sum()),
+            "out": None if out_dir is None else str(out_dir), "kw": kw, "pid": os.getpid()}
+
+
+def _fresh_draws(cases, seed):
+    from rdnet.calib.proof import case_draws
+    rng = np.random.default_rng(seed)
+    return [case_draws(c, SceneSpec(), rng)[1] for c in cases]
+
+
 def test_run_generators_fresh_rng_per_generator_folders_and_names(monkeypatch, tmp_path):
-    """The one loop of the stage and of ``python -m rdnet.calib.proof`` (run_proof stubbed)."""
+    """The one loop of the stage and of ``python -m rdnet.calib.proof`` (run_case stubbed):
+    each generator's cases take their draws from a fresh default_rng(seed), in order."""
     import rdnet.calib.proof as proof
-    calls = []
-
-    def fake(cases, out_dir, rng, **kw):
-        calls.append(([c.name for c in cases], out_dir, int(rng.integers(1 << 30)), kw))
-        return {"cases": [], "summary": {}}
-
-    monkeypatch.setattr(proof, "run_proof", fake)
+    monkeypatch.setattr(proof, "run_case", _fake_row)
     out = proof.run_generators(tmp_path, 5, quick=True, interpolate="i")
     assert list(out) == ["rdnet", "circuit"]
-    (rn, rd, r1, kw), (cn, cd, r2, _) = calls
-    assert rn == [c.name for c in cases_for("rdnet", True)["rdnet"]] and cn == [
-        c.name for c in cases_for("circuit", True)["circuit"]]
-    assert (rd, cd) == (tmp_path, tmp_path / "circuit") and kw == {"interpolate": "i"}
-    assert r1 == r2 == int(np.random.default_rng(5).integers(1 << 30))       # each from default_rng(seed)
-    calls.clear()
+    for gen, folder in (("rdnet", tmp_path), ("circuit", tmp_path / "circuit")):
+        cases = cases_for(gen, True)[gen]
+        rows = out[gen]["cases"]
+        assert [r["case"] for r in rows] == [c.name for c in cases]
+        assert {r["out"] for r in rows} == {str(folder)} and all(r["kw"] == {"interpolate": "i"} for r in rows)
+        assert [r["seed"] for r in rows] == _fresh_draws(cases, 5)
+        assert (folder / "proof.json").is_file() and out[gen]["summary"]["null_cases"] == len(cases)
     # only the named cases; a generator left without any is skipped; no folder without out_dir
     out = proof.run_generators(None, 5, names=["null_thresholds"])
-    assert list(out) == ["rdnet"] and calls[0][:2] == (["null_thresholds"], None)
+    assert list(out) == ["rdnet"] and [r["out"] for r in out["rdnet"]["cases"]] == [None]
 
 
 def test_run_blocks_in_processes_equals_serial(monkeypatch, tmp_path):
-    """The stage runs its blocks in worker processes: same results, same order, each block
-    from its own default_rng(seed) (run_proof stubbed; the stub reaches the forked workers)."""
+    """The stage runs the cases of all blocks in worker processes: the same rows in the same
+    order as a serial run, each block's draws from its own default_rng(seed) (run_case
+    stubbed; the stub reaches the forked workers)."""
     import os
 
     import rdnet.calib.proof as proof
-
-    def fake(cases, out_dir, rng, **kw):
-        return {"cases": [c.name for c in cases], "out": str(out_dir), "draw": int(rng.integers(1 << 30)),
-                "kw": kw, "pid": os.getpid()}
-
-    monkeypatch.setattr(proof, "run_proof", fake)
+    monkeypatch.setattr(proof, "run_case", _fake_row)
     blocks = proof.generator_blocks(tmp_path, quick=True, interpolate="i")
     blocks.append(proof.Block("oversample4", blocks[0].cases, tmp_path / "oversample4", {"oversample": 4}))
     serial = proof.run_blocks(blocks, 5, workers=1)
     parallel = proof.run_blocks(blocks, 5, workers=2)
     assert list(serial) == list(parallel) == ["rdnet", "circuit", "oversample4"]
-    strip = {k: {f: v for f, v in m.items() if f != "pid"} for k, m in parallel.items()}
-    assert strip == {k: {f: v for f, v in m.items() if f != "pid"} for k, m in serial.items()}
-    assert {m["pid"] for m in parallel.values()} != {os.getpid()}      # ran in the workers
-    assert len({m["draw"] for m in parallel.values()}) == 1              # every block: default_rng(5)
+
+    def strip(runs):
+        return {k: [{f: v for f, v in r.items() if f != "pid"} for r in m["cases"]] for k, m in runs.items()}
+
+    assert strip(parallel) == strip(serial)
+    pids = {r["pid"] for m in parallel.values() for r in m["cases"]}
+    assert os.getpid() not in pids                                       # ran in the workers
+    for b in blocks:
+        assert [r["seed"] for r in parallel[b.key]["cases"]] == _fresh_draws(b.cases, 5)
+    assert parallel["oversample4"]["cases"][0]["kw"] == {"oversample": 4}
+
+
+def test_case_draws_are_all_a_case_takes_from_the_generator():
+    """make_recording takes exactly case_draws from its generator: a recording made from the
+    draws equals one made from the generator, and the generator ends where case_draws
+    leaves it (so run_proof can take every case's draws first)."""
+    from rdnet.calib.proof import case_draws
+    case = ProofCase("c", "latency", {"jitter_us": 500.0}, {"jitter_us": 500.0, "latency_us": 2000.0},
+                     compensate=None, generator="circuit", scene=(("texture_px", 2.0),))
+    rng = np.random.default_rng(8)
+    a, _ = make_recording(case, SPEC, SensorConfig(), rng)
+    after = int(rng.integers(1 << 30))
+    rng2 = np.random.default_rng(8)
+    draws = case_draws(case, SPEC, rng2)
+    b, _ = make_recording(case, SPEC, SensorConfig(), None, draws=draws)
+    assert a.events.array.tobytes() == b.events.array.tobytes()
+    assert np.array_equal(a.frames.images, b.frames.images)
+    assert int(rng2.integers(1 << 30)) == after
 
 
 def test_preroll_adds_frames_before_zero_and_keeps_the_recorded_ones():
