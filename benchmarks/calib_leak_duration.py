@@ -17,26 +17,34 @@ import json
 import logging
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 CASES = {"rdnet": ("leak_under_shot_noise", "leak_under_shot_noise_s1B"),
          "circuit": ("circuit_leak_under_shot_noise_s1A", "circuit_leak_under_shot_noise_s1B")}
 
 
-def run(generator: str, duration_us: int, seed: int, warmup_us: int) -> list[dict]:
-    from rdnet.calib.proof import cases_for, run_proof
+def blocks(durations_us, warmup_us: int) -> list:
+    """One proof block per generator and length (each from the same seed in
+    :func:`rdnet.calib.proof.run_blocks`, so only the length differs)."""
+    from rdnet.calib.proof import Block, cases_for
     from rdnet.calib.scene import SceneSpec
     from rdnet.calib.settings import CalibrateConfig
     from rdnet.sim.interpolate import InterpolateConfig
-    cases = [c for c in cases_for(generator)[generator] if c.name in CASES[generator]]
-    m = run_proof(cases, None, np.random.default_rng(seed), spec=SceneSpec(duration_us=duration_us),
-                  cfg=CalibrateConfig(warmup_us=warmup_us), interpolate=InterpolateConfig(max_upsample=16),
-                  truth_warmup_us=5_000_000, truth_preroll_us=500_000)
-    return [{"generator": generator, "duration_us": duration_us, "case": r["case"], "named": r["named"],
+    out = []
+    for gen, names in CASES.items():
+        cases = tuple(c for c in cases_for(gen)[gen] if c.name in names)
+        for d in durations_us:
+            out.append(Block(f"{gen}@{d}", cases, None, dict(
+                spec=SceneSpec(duration_us=d), cfg=CalibrateConfig(warmup_us=warmup_us),
+                interpolate=InterpolateConfig(max_upsample=16), truth_warmup_us=5_000_000, truth_preroll_us=500_000)))
+    return out
+
+
+def rows_of(key: str, metrics: dict) -> list[dict]:
+    gen, d = key.split("@")
+    return [{"generator": gen, "duration_us": int(d), "case": r["case"], "named": r["named"],
              "rank": r["rank"], "leak_rel_error": r.get("param_max_rel_error"),
              "heldout_before": r["heldout_before"], "heldout_after": r["heldout_after"],
-             "noise_floor": r["heldout_noise_floor"]} for r in m["cases"]]
+             "noise_floor": r["heldout_noise_floor"]} for r in metrics["cases"]]
 
 
 def markdown(rows: list[dict]) -> str:
@@ -54,22 +62,17 @@ def main() -> None:
     ap.add_argument("--durations-us", type=int, nargs="+", default=[1_000_000, 3_000_000])
     ap.add_argument("--seed", type=int, default=2024)
     ap.add_argument("--warmup-us", type=int, default=3_000_000, help="calibrate.warmup_us of the calibration")
-    ap.add_argument("--workers", type=int, default=1, help="runs at once, one process each")
+    ap.add_argument("--workers", type=int, default=1, help="cases run at once, one process each")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "calib_leak_duration.json")
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    jobs = [(g, d, args.seed, args.warmup_us) for g in CASES for d in args.durations_us]
-    if args.workers > 1:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
-        with ProcessPoolExecutor(args.workers, mp_context=mp.get_context("fork")) as ex:
-            parts = list(ex.map(run, *zip(*jobs)))
-    else:
-        parts = [run(*j) for j in jobs]
-    rows = [r for p in parts for r in p]
+    from rdnet.calib.proof import run_blocks
+    runs = run_blocks(blocks(args.durations_us, args.warmup_us), args.seed, workers=args.workers)
+    rows = [r for key, m in runs.items() for r in rows_of(key, m)]
+    from rdnet.eval.report import write_text_atomic
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"seed": args.seed, "warmup_us": args.warmup_us, "rows": rows}, indent=1) + "\n")
-    args.out.with_suffix(".md").write_text(markdown(rows))
+    write_text_atomic(args.out, json.dumps({"seed": args.seed, "warmup_us": args.warmup_us, "rows": rows}, indent=1) + "\n")
+    write_text_atomic(args.out.with_suffix(".md"), markdown(rows))
     print(markdown(rows))
 
 

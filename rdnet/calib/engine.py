@@ -45,16 +45,24 @@ _KERNEL, _HOT, _TIMING, _REFERENCE = 0, 2, 3, 4
 WARMUP_STEP_US = 50_000
 
 
-def randomize_reference(sensor: Sensor, degrade: DegradeConfig, u: np.ndarray) -> None:
-    """Move the reference of every pixel of ``sensor`` (after its first frame set the state)
-    to ``L0 + theta_off - u (theta_on + theta_off)``, ``u`` (H, W) in [0, 1): the log
+def randomize_reference(sensor: Sensor, degrade: DegradeConfig, u: np.ndarray,
+                        where: np.ndarray | None = None) -> None:
+    """Move the reference of every pixel of ``sensor`` (or of the pixels ``where``, (H, W)
+    bool) to ``S + theta_off - u (theta_on + theta_off)``, ``u`` (H, W) in [0, 1), ``S`` the
+    level the sensor holds (the first frame's, right after it set the state): the log
     intensity then sits uniformly between the OFF and the ON threshold, the stationary
     state of a pixel that has seen changes before the recording starts (the simulator's
-    own start, ``ref = L0``, puts every pixel exactly between them). A config with a leak
-    keeps the sensor's own random leak phase."""
-    if degrade.leak_hz > 0:
+    own start, ``ref = L0``, puts every pixel exactly between them). Without ``where`` a
+    config with a leak keeps the sensor's own random leak phase."""
+    if where is None:
+        if degrade.leak_hz > 0:
+            return
+        sensor.ref[...] = sensor.s_prev + sensor.thr_off - u * (sensor.thr_on + sensor.thr_off)
         return
-    sensor.ref[...] = sensor.s_prev + sensor.thr_off - u * (sensor.thr_on + sensor.thr_off)
+    m = np.asarray(where, bool)
+    if m.shape != sensor.ref.shape:
+        raise ValueError(f"pixel mask {m.shape} does not match the sensor {sensor.ref.shape}")
+    sensor.ref[m] = sensor.s_prev[m] + sensor.thr_off[m] - u[m] * (sensor.thr_on[m] + sensor.thr_off[m])
 
 
 def warms_up(degrade: DegradeConfig) -> bool:
@@ -94,10 +102,7 @@ def start(sensor: Sensor, degrade: DegradeConfig, frame: np.ndarray, t0: int, u:
         t = np.linspace(t_start, t0, max(2, -(-int(warmup_us) // WARMUP_STEP_US) + 1)).round().astype(np.int64)[1:]
         sensor.step(np.repeat(frame, t.size, axis=0), t, log=log)
         if moving is not None and u is not None:
-            if moving.shape != sensor.ref.shape:
-                raise ValueError(f"moving mask {moving.shape} does not match the sensor {sensor.ref.shape}")
-            m = np.asarray(moving, bool)
-            sensor.ref[m] = sensor.s_prev[m] + sensor.thr_off[m] - u[m] * (sensor.thr_on[m] + sensor.thr_off[m])
+            randomize_reference(sensor, degrade, u, where=moving)
     return warm
 
 

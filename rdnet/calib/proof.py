@@ -202,14 +202,6 @@ def _circuit_events(frames, sensor, degrade, seed, extra=(), warmup_us=TRUTH_WAR
                               warmup_us=warmup_us if warms_up(degrade) else 0.0))
 
 
-def _from_zero(frames: Frames) -> Frames:
-    """The frames from t = 0 on (the recorded ones of a pre-rolled rendering)."""
-    k = int(np.searchsorted(frames.t_us, 0))
-    if k == 0:
-        return frames
-    return Frames(frames.images[k:], frames.t_us[k:], frames.exposure_us[k:])
-
-
 def case_spec(case: ProofCase, spec: SceneSpec) -> SceneSpec:
     """The scene of ``case``: ``spec`` with the case's motion and scene overrides."""
     return dataclasses.replace(spec, motion=case.motion, **dict(case.scene))
@@ -246,7 +238,8 @@ def make_recording(case: ProofCase, spec: SceneSpec, sensor: SensorConfig, rng: 
     spec = case_spec(case, spec)
     pre = int(truth_preroll_us)
     rolled, _ = render(spec, rng, texture=tex, preroll_us=pre)
-    frames = _from_zero(rolled)
+    k = int(np.searchsorted(rolled.t_us, 0))                     # the recorded frames: from t = 0 on
+    frames = Frames(rolled.images[k:], rolled.t_us[k:], rolled.exposure_us[k:]) if k else rolled
     circuit = case.generator == "circuit"
     if circuit:
         fine, _ = render(spec, rng, fps_hz=spec.fps_hz * circuit_oversample, texture=tex, preroll_us=pre)
