@@ -23,15 +23,25 @@ import torch.nn.functional as F
 from torch import nn
 
 
+def _kernel_channels() -> int:
+    """LayerNorm2d's numba kernel serves channel counts below this (imported lazily, so
+    that importing the networks does not compile or load numba)."""
+    from rdnet.nn.cpu_kernels import MAX_CHANNELS
+    return MAX_CHANNELS
+
+
 class LayerNorm2d(nn.Module):
     """LayerNorm over channels of (B, C, H, W), with per-channel affine weight and bias.
 
     A channels_last input (the memory format of inference on CPU,
-    :func:`rdnet.restore.learned.prepare_for_inference`) outside autograd is normalised by
-    torch's fused ``layer_norm`` over the last axis of its (B, H, W, C) view, one pass
-    instead of eight elementwise ones (about 2 ms of 30 per DAVIS346 window); the result
-    equals the formula below up to float rounding. Contiguous inputs and every pass that
-    records gradients -- all of training -- take the formula as written.
+    :func:`rdnet.restore.learned.prepare_for_inference`) outside autograd is normalised
+    over the last axis of its (B, H, W, C) view in one pass instead of eight elementwise
+    ones: on a CPU float32 tensor of fewer than
+    :data:`rdnet.nn.cpu_kernels.MAX_CHANNELS` channels by the numba kernel
+    :func:`rdnet.nn.cpu_kernels.layer_norm_rows` (torch's ``layer_norm`` pays a fixed cost
+    per row that dominates for 8-16 channels), otherwise by torch's fused ``layer_norm``.
+    Either result equals the formula below up to float rounding. Contiguous inputs and
+    every pass that records gradients -- all of training -- take the formula as written.
     """
 
     def __init__(self, channels: int, eps: float = 1e-6):
@@ -41,9 +51,17 @@ class LayerNorm2d(nn.Module):
         self.eps = eps
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if (x.dim() == 4 and not torch.is_grad_enabled() and not x.is_contiguous()
-                and x.is_contiguous(memory_format=torch.channels_last)):
-            y = F.layer_norm(x.permute(0, 2, 3, 1), (x.shape[1],), self.weight, self.bias, self.eps)
+        if _inference_layout(x):
+            rows = x.permute(0, 2, 3, 1)                 # (B, H, W, C), contiguous
+            if x.device.type == "cpu" and x.dtype == torch.float32 and x.shape[1] < _kernel_channels():
+                from rdnet.nn.cpu_kernels import layer_norm_rows
+                y = torch.empty_like(x)                  # channels_last, as x
+                c = x.shape[1]
+                layer_norm_rows(rows.reshape(-1, c).numpy(), self.weight.detach().numpy(),
+                                self.bias.detach().numpy(), self.eps,
+                                out=y.permute(0, 2, 3, 1).reshape(-1, c).numpy())
+                return y
+            y = F.layer_norm(rows, (x.shape[1],), self.weight, self.bias, self.eps)
             return y.permute(0, 3, 1, 2)           # a channels_last (B, C, H, W) tensor again
         mu = x.mean(1, keepdim=True)
         var = (x - mu).pow(2).mean(1, keepdim=True)
@@ -96,12 +114,34 @@ class NAFBlock(nn.Module):
         self.gamma = nn.Parameter(torch.zeros(1, c, 1, 1))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if x.shape[0] == 1 and _inference_layout(x):
+            return self._folded(x)
         y = self.conv1(self.norm1(x))
         y = self.gate(self.conv2(y))
         y = self.conv3(self.sca(y))
         x = x + y * self.beta
         y = self.conv5(self.gate(self.conv4(self.norm2(x))))
         return x + y * self.gamma
+
+
+    def _folded(self, x: torch.Tensor) -> torch.Tensor:
+        """:meth:`forward` for one channels_last sample outside autograd (inference): the
+        channel attention's scale and ``beta`` are folded into conv3's weights, ``gamma``
+        into conv5's, which saves three elementwise passes over full-size maps. Equal to
+        :meth:`forward` up to float rounding."""
+        y = self.gate(self.conv2(self.conv1(self.norm1(x))))
+        scale = self.sca.conv(self.sca.pool(y)).view(1, -1, 1, 1)          # (1, dw/2, 1, 1)
+        beta, gamma = self.beta.view(-1, 1, 1, 1), self.gamma.view(-1, 1, 1, 1)
+        x = x + F.conv2d(y, self.conv3.weight * scale * beta, self.conv3.bias * beta.view(-1))
+        y = self.gate(self.conv4(self.norm2(x)))
+        return x.add_(F.conv2d(y, self.conv5.weight * gamma, self.conv5.bias * gamma.view(-1)))
+
+
+def _inference_layout(x: torch.Tensor) -> bool:
+    """Whether ``x`` takes the inference paths of :class:`LayerNorm2d` and
+    :class:`NAFBlock`: a 4-d channels_last (not contiguous) tensor outside autograd."""
+    return (x.dim() == 4 and not torch.is_grad_enabled() and not x.is_contiguous()
+            and x.is_contiguous(memory_format=torch.channels_last))
 
 
 def nafblock_params(c: int, dw_expand: int = 2, ffn_expand: int = 2) -> int:

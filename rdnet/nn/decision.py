@@ -177,15 +177,35 @@ def decided_entries(mu, logit, decision: Mapping | None) -> tuple[np.ndarray, np
     (:func:`rdnet.events.voxel.entry_events` turns them into events). The comparison
     ``logit >= logit_threshold(threshold)`` is the one dense pass; only the kept voxels
     are read after it."""
-    import torch
     threshold = float(read_decision(decision, "counts")["threshold"])
     if mu.shape != logit.shape:
         raise ValidationError("decision", f"mu {tuple(mu.shape)} and logits {tuple(logit.shape)} differ")
     lt = logit_threshold(threshold)
-    shape = tuple(logit.shape)
     if lt == float("inf"):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    keep = (logit >= lt).cpu()
+    return _kept_entries(logit >= lt, lambda *where: mu[where])
+
+
+def sparse_decided_entries(stage1, image, counts, decision: Mapping | None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`decided_entries` of a count-output stage 1's heads on the torch inputs
+    ``image`` (None for events-only) and ``counts`` (ON-then-OFF counts), computed with
+    :meth:`rdnet.nn.models.RestoreNet.sparse_heads`: the same voxels (the logits are
+    computed as in the dense heads) and their counts from ``mu`` evaluated at those voxels
+    only. Inference only (:mod:`rdnet.restore.learned`); call it under ``inference_mode``."""
+    threshold = float(read_decision(decision, "counts")["threshold"])
+    lt = logit_threshold(threshold)
+    if lt == float("inf"):
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    keep, mu_at = stage1.sparse_heads(image, counts, lt)
+    return _kept_entries(keep, mu_at)
+
+
+def _kept_entries(keep, mu_at) -> tuple[np.ndarray, np.ndarray]:
+    """``(index, counts)`` of :func:`decided_entries` from the bool mask ``keep`` (torch,
+    (n, C, H, W), any memory format) and ``mu_at(n, c, y, x)``, the count head at the
+    kept voxels (index arrays, in increasing C order)."""
+    shape = tuple(keep.shape)
+    keep = keep.cpu()
     # read the mask in memory order (a channels_last tensor is NHWC in memory), then map
     # the positions back to the C order of (n, C, H, W)
     perm = sorted(range(keep.dim()), key=lambda d: (-keep.stride(d), d))
@@ -199,7 +219,9 @@ def decided_entries(mu, logit, decision: Mapping | None) -> tuple[np.ndarray, np
     index = np.ravel_multi_index(tuple(where), shape).astype(np.int64)
     order = np.argsort(index, kind="stable")
     index = index[order]
-    mu_kept = mu.float().cpu().numpy()[tuple(w[order] for w in where)]
+    if not index.size:
+        return index, np.zeros(0, np.int64)
+    mu_kept = mu_at(*(w[order] for w in where)).float().cpu().numpy()
     counts = np.rint(np.maximum(mu_kept, 1.0)).astype(np.int64)     # decide_counts' rounding
     return index, counts
 

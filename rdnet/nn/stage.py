@@ -143,6 +143,19 @@ class StageNet(nn.Module):
 
     # --- forward ----------------------------------------------------------------------
     def forward(self, image: torch.Tensor | None, events: torch.Tensor | None = None) -> torch.Tensor:
+        x, recv_in, H, W = self.decoded(image, events)
+        out = self.ending(x)
+        if self.residual:
+            out = out + recv_in
+        return out[..., :H, :W]
+
+    def decoded(self, image: torch.Tensor | None, events: torch.Tensor | None = None):
+        """Everything of :meth:`forward` before the output conv: ``(x, recv_in, H, W)``,
+        the decoder's last features (B, width, H', W') and the receiving branch's input,
+        both at the padded size H' x W' (module docstring), and the input size H x W.
+        ``forward`` is ``(ending(x) [+ recv_in])[..., :H, :W]``; a caller that needs only
+        some output channels, or only some pixels, applies ``self.ending`` to ``x`` itself
+        (:meth:`rdnet.nn.models.RestoreNet.kept_entries`)."""
         if self.image_branch is None:
             if image is not None:
                 raise ValueError("this stage has no image branch: pass image=None")
@@ -184,7 +197,4 @@ class StageNet(nn.Module):
         x = self.middle(x)
         for up, dec, skip in zip(self.ups, self.decoders, reversed(skips)):
             x = dec(up(x) + skip)
-        out = self.ending(x)
-        if self.residual:
-            out = out + recv_in
-        return out[..., :H, :W]
+        return x, recv_in, H, W

@@ -32,9 +32,18 @@ rounding of the threshold may be decided the other way (none on the DAVIS346 rec
 its 70,374 restored events are identical); ``tests/restore/test_learned_speed.py``
 checks the two layouts give the same events on synthetic streams. Training is untouched
 (it never runs channels_last). The count output is decided on the logits and only the
-kept voxels are read back (:func:`rdnet.nn.decision.decided_entries`,
+kept voxels are read back (:func:`rdnet.nn.decision.sparse_decided_entries`,
 :func:`rdnet.events.voxel.entry_events`): no dense sigmoid, float64 or int64 grid per
-window (about 10 ms a window before).
+window (about 10 ms a window before). Since then three more inference paths, each equal
+to the plain network up to float rounding (tests/nn/test_inference_layout.py): the layer
+norms of 8 and 16 channels run in a numba kernel (:mod:`rdnet.nn.cpu_kernels`; torch's
+per-row cost dominated them), each NAFBlock folds its channel attention and its
+``beta`` / ``gamma`` into the 1x1 convolutions' weights (:meth:`NAFBlock._folded`), and
+only the occupancy half of the output convolution runs densely, the count head being
+evaluated at the kept voxels alone (:meth:`rdnet.nn.models.RestoreNet.sparse_heads`; the
+kept voxels are exactly those of the dense heads). Network and decision went from about
+52 to 38 ms a DAVIS346 window on 2 cores (``benchmarks/bench_restore.py``); the numba
+kernel costs about 0.35 s once per process, when its compiled code is loaded.
 """
 from __future__ import annotations
 
@@ -133,7 +142,7 @@ class LearnedRestorer:
         image, (H, W) or (H, W, 3), uint8 or linear float32; required when
         ``needs_frames``, ignored otherwise)."""
         import torch
-        from rdnet.nn.decision import decided_entries
+        from rdnet.nn.decision import sparse_decided_entries
 
         t0_us, t1_us = int(t0_us), int(t1_us)
         if t1_us <= t0_us:
@@ -149,8 +158,7 @@ class LearnedRestorer:
         img = self._tensor(self._image(frame, H, W)) if self.net.image_channels else None
         with torch.inference_mode():
             if split:
-                mu, logit = self.net(img, x, return_heads=True)
-                index, counts = decided_entries(mu, logit, self.decision)
+                index, counts = sparse_decided_entries(self.net, img, x, self.decision)
                 restored = entry_events(index, counts, (2, self.bins, H, W), t0_us, dur, mode=self.mode)
             else:
                 out = self.net(img, x)[0].contiguous().cpu().numpy()
