@@ -155,6 +155,30 @@ def logit_threshold(threshold: float) -> float:
     return float(_ordered_to_float(np.array([hi]))[0])
 
 
+@lru_cache(maxsize=64)
+def offset_threshold(threshold: float, offset: float) -> float:
+    """The smallest float32 ``o`` with ``float32(o + offset) >= threshold`` (float32
+    arithmetic, round to nearest): ``o >= offset_threshold(t, d)`` is ``o + d >= t`` for
+    every float32 ``o``, since the rounded sum does not decrease with ``o``.
+    :meth:`rdnet.nn.models.RestoreNet.sparse_heads` compares the occupancy conv's output
+    with it instead of adding the +-GAIN offset first. Searched over the float32 values in
+    order (1,025 candidates a round, as :func:`logit_threshold`), so it is exact also where
+    many ``o`` round to the same sum (``o`` near 0 and ``t`` near ``d``). -inf / +inf pass
+    through."""
+    t, d = np.float32(threshold), np.float32(offset)
+    if not np.isfinite(t):
+        return float(t)
+    # lo fails (-inf + d = -inf < t), hi passes (+inf + d = +inf >= t)
+    lo, hi = int(_float_to_ordered(np.float32(-np.inf))), int(_float_to_ordered(np.float32(np.inf)))
+    while hi - lo > 1:
+        cand = np.unique(np.linspace(lo, hi, 1025).round().astype(np.int64))
+        with np.errstate(over="ignore"):
+            ok = (_ordered_to_float(cand) + d) >= t
+        first = int(np.argmax(ok))                  # the last candidate (hi) passes
+        lo, hi = int(cand[first - 1]) if first > 0 else lo, int(cand[first])
+    return float(_ordered_to_float(np.array([hi]))[0])
+
+
 def _float_to_ordered(x: np.ndarray) -> np.ndarray:
     """float32 -> int64 keys in the order of the values (-0.0 just below +0.0)."""
     b = np.asarray(x, np.float32).view(np.int32).astype(np.int64)

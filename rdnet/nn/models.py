@@ -41,6 +41,7 @@ from torch import nn
 
 from rdnet.errors import ConfigError
 from rdnet.nn.blocks import nafblock_params
+from rdnet.nn.decision import offset_threshold
 from rdnet.nn.stage import StageNet
 
 #: Architecture hyper-parameters per named size (shared by both stages).
@@ -62,22 +63,6 @@ def count_parameters(model: nn.Module, trainable_only: bool = False) -> int:
 RESTORE_OUTPUTS = ("signed", "counts")
 #: logit offset of the identity start of the occupancy head: sigmoid(+-4) = 0.982 / 0.018.
 OCCUPANCY_GAIN = 4.0
-
-
-def offset_threshold(threshold: float, offset: float) -> float:
-    """The smallest float32 ``o`` with ``float32(o + offset) >= threshold`` (float32
-    arithmetic, round to nearest): ``o >= offset_threshold(t, d)`` is ``o + d >= t`` for
-    every float32 ``o`` (the sum is monotone in ``o``). -inf / +inf pass through."""
-    t, d = np.float32(threshold), np.float32(offset)
-    if not np.isfinite(t):
-        return float(t)
-    c = np.float32(t - d)
-    with np.errstate(over="ignore"):
-        while np.float32(c + d) < t:
-            c = np.nextafter(c, np.float32(np.inf))
-        while np.float32(np.nextafter(c, np.float32(-np.inf)) + d) >= t:
-            c = np.nextafter(c, np.float32(-np.inf))
-    return float(c)
 
 
 class RestoreNet(nn.Module):

@@ -144,9 +144,10 @@ def test_sparse_heads_keep_the_dense_decision_exactly(channels_last):
 
 @pytest.mark.parametrize("offset", [4.0, -4.0, 0.25])
 def test_offset_threshold_is_the_smallest_float32_passing(offset):
-    from rdnet.nn.models import offset_threshold
+    from rdnet.nn.decision import offset_threshold
     d = np.float32(offset)
-    for t in (0.3, -0.4471, 3.99, 4.0000005, 1e-8, -7.2, 1e30):
+    # 4.0000005 with offset 4: about 4 million float32 o near 0 round to the same sum
+    for t in (0.3, -0.4471, 3.99, 4.0000005, 4.0, 1e-8, -7.2, 1e30, -3e38):
         a = np.float32(offset_threshold(t, offset))
         assert np.float32(a + d) >= np.float32(t)
         assert np.float32(np.nextafter(a, np.float32(-np.inf)) + d) < np.float32(t)
