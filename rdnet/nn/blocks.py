@@ -23,11 +23,9 @@ import torch.nn.functional as F
 from torch import nn
 
 
-def _kernel_channels() -> int:
-    """LayerNorm2d's numba kernel serves channel counts below this (imported lazily, so
-    that importing the networks does not compile or load numba)."""
-    from rdnet.nn.cpu_kernels import MAX_CHANNELS
-    return MAX_CHANNELS
+#: LayerNorm2d's inference path uses the numba kernel :func:`rdnet.nn.cpu_kernels.layer_norm_rows`
+#: below this channel count (torch's fused layer norm is as fast from 32 channels on).
+NUMBA_NORM_MAX_CHANNELS = 32
 
 
 class LayerNorm2d(nn.Module):
@@ -37,7 +35,7 @@ class LayerNorm2d(nn.Module):
     :func:`rdnet.restore.learned.prepare_for_inference`) outside autograd is normalised
     over the last axis of its (B, H, W, C) view in one pass instead of eight elementwise
     ones: on a CPU float32 tensor of fewer than
-    :data:`rdnet.nn.cpu_kernels.MAX_CHANNELS` channels by the numba kernel
+    :data:`NUMBA_NORM_MAX_CHANNELS` channels by the numba kernel
     :func:`rdnet.nn.cpu_kernels.layer_norm_rows` (torch's ``layer_norm`` pays a fixed cost
     per row that dominates for 8-16 channels), otherwise by torch's fused ``layer_norm``.
     Either result equals the formula below up to float rounding. Contiguous inputs and
@@ -53,8 +51,8 @@ class LayerNorm2d(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if _inference_layout(x):
             rows = x.permute(0, 2, 3, 1)                 # (B, H, W, C), contiguous
-            if x.device.type == "cpu" and x.dtype == torch.float32 and x.shape[1] < _kernel_channels():
-                from rdnet.nn.cpu_kernels import layer_norm_rows
+            if x.device.type == "cpu" and x.dtype == torch.float32 and x.shape[1] < NUMBA_NORM_MAX_CHANNELS:
+                from rdnet.nn.cpu_kernels import layer_norm_rows    # lazy: numba for inference only
                 y = torch.empty_like(x)                  # channels_last, as x
                 c = x.shape[1]
                 layer_norm_rows(rows.reshape(-1, c).numpy(), self.weight.detach().numpy(),
@@ -122,7 +120,6 @@ class NAFBlock(nn.Module):
         x = x + y * self.beta
         y = self.conv5(self.gate(self.conv4(self.norm2(x))))
         return x + y * self.gamma
-
 
     def _folded(self, x: torch.Tensor) -> torch.Tensor:
         """:meth:`forward` for one channels_last sample outside autograd (inference): the

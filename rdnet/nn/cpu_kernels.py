@@ -7,7 +7,7 @@ whole 8-channel tensor can be read and written in about 0.1 ms. :func:`layer_nor
 normalises the rows of a (rows, channels) float32 array in one pass per row, rows split
 across numba's threads: 0.54 ms and 0.30 ms for those two tensors. From 32 channels on
 torch is as fast, so :class:`rdnet.nn.blocks.LayerNorm2d` uses the kernel below
-:data:`MAX_CHANNELS` only (and only for channels_last CPU tensors outside autograd, i.e.
+:data:`rdnet.nn.blocks.NUMBA_NORM_MAX_CHANNELS` only (and only for channels_last CPU tensors outside autograd, i.e.
 inference as :func:`rdnet.restore.learned.prepare_for_inference` sets it up).
 
 The arithmetic is the formula of LayerNorm2d in float32: mean, then the mean squared
@@ -23,9 +23,6 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit, prange
-
-#: LayerNorm2d uses :func:`layer_norm_rows` for channel counts below this (module docstring).
-MAX_CHANNELS = 32
 
 
 @njit(parallel=True, cache=True, boundscheck=False)
@@ -63,4 +60,3 @@ def layer_norm_rows(x: np.ndarray, weight: np.ndarray, bias: np.ndarray, eps: fl
     _layer_norm_rows(x, weight.astype(np.float32, copy=False), bias.astype(np.float32, copy=False),
                      np.float32(eps), out)
     return out
-

@@ -145,12 +145,18 @@ def logit_threshold(threshold: float) -> float:
         x = _ordered_to_float(np.r_[keys, np.full(-keys.size % 64, keys[-1])])
         return (torch.sigmoid(torch.from_numpy(x)) >= float(t32)).numpy()[:keys.size]
 
-    # float32 values as ordered integers: lo fails, hi passes (sigmoid(+inf) = 1 >= t)
+    return _smallest_passing(passes)         # sigmoid(+inf) = 1 >= t: +inf passes
+
+
+def _smallest_passing(passes) -> float:
+    """The smallest float32 ``x`` for which the monotone predicate ``passes`` holds, given
+    that it fails at -inf and holds at +inf: the float32 values are searched in order as
+    integer keys (:func:`_float_to_ordered`), 1,025 candidates a round. ``passes`` takes an
+    int64 array of keys and returns a bool array."""
     lo, hi = int(_float_to_ordered(np.float32(-np.inf))), int(_float_to_ordered(np.float32(np.inf)))
     while hi - lo > 1:
         cand = np.unique(np.linspace(lo, hi, 1025).round().astype(np.int64))
-        ok = passes(cand)
-        first = int(np.argmax(ok))                  # the last candidate (hi) passes
+        first = int(np.argmax(passes(cand)))        # the last candidate (hi) passes
         lo, hi = int(cand[first - 1]) if first > 0 else lo, int(cand[first])
     return float(_ordered_to_float(np.array([hi]))[0])
 
@@ -162,21 +168,18 @@ def offset_threshold(threshold: float, offset: float) -> float:
     every float32 ``o``, since the rounded sum does not decrease with ``o``.
     :meth:`rdnet.nn.models.RestoreNet.sparse_heads` compares the occupancy conv's output
     with it instead of adding the +-GAIN offset first. Searched over the float32 values in
-    order (1,025 candidates a round, as :func:`logit_threshold`), so it is exact also where
+    order (:func:`_smallest_passing`, as :func:`logit_threshold`), so it is exact also where
     many ``o`` round to the same sum (``o`` near 0 and ``t`` near ``d``). -inf / +inf pass
     through."""
     t, d = np.float32(threshold), np.float32(offset)
     if not np.isfinite(t):
         return float(t)
-    # lo fails (-inf + d = -inf < t), hi passes (+inf + d = +inf >= t)
-    lo, hi = int(_float_to_ordered(np.float32(-np.inf))), int(_float_to_ordered(np.float32(np.inf)))
-    while hi - lo > 1:
-        cand = np.unique(np.linspace(lo, hi, 1025).round().astype(np.int64))
+
+    def passes(keys: np.ndarray) -> np.ndarray:
         with np.errstate(over="ignore"):
-            ok = (_ordered_to_float(cand) + d) >= t
-        first = int(np.argmax(ok))                  # the last candidate (hi) passes
-        lo, hi = int(cand[first - 1]) if first > 0 else lo, int(cand[first])
-    return float(_ordered_to_float(np.array([hi]))[0])
+            return (_ordered_to_float(keys) + d) >= t
+
+    return _smallest_passing(passes)         # -inf + d = -inf < t fails, +inf + d passes
 
 
 def _float_to_ordered(x: np.ndarray) -> np.ndarray:

@@ -65,6 +65,12 @@ RESTORE_OUTPUTS = ("signed", "counts")
 OCCUPANCY_GAIN = 4.0
 
 
+def _count_head(counts: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """The count head of :class:`RestoreNet` from the input counts and the output conv's
+    count channels: ``mu = max(max(x, 1) + r, 1)``."""
+    return (counts.clamp_min(1.0) + r).clamp_min(1.0)
+
+
 class RestoreNet(nn.Module):
     """Stage 1: restore degraded event voxels, guided by the blurry image (or events
     only with ``image_channels=0``: ``image`` is then None).
@@ -124,7 +130,7 @@ class RestoreNet(nn.Module):
             raise ValueError("heads() exists for output='counts' only")
         out = self.net(image, counts)
         r, o = out[:, :2 * self.bins], out[:, 2 * self.bins:]
-        mu = (counts.clamp_min(1.0) + r).clamp_min(1.0)
+        mu = _count_head(counts, r)
         logit = o + OCCUPANCY_GAIN * (2.0 * (counts > 0).to(o.dtype) - 1.0)
         return mu, logit
 
@@ -155,8 +161,7 @@ class RestoreNet(nn.Module):
             k = weight.shape[-1]
             patch = torch.stack([padded[b, :, y + dy, x + dx] for dy in range(k) for dx in range(k)], 1)
             w = weight[c].permute(0, 2, 3, 1).reshape(len(c), k * k, -1)    # (n, taps, width)
-            r = (patch * w).sum((1, 2)) + bias[c]
-            return (counts[b, c, y, x].clamp_min(1.0) + r).clamp_min(1.0)
+            return _count_head(counts[b, c, y, x], (patch * w).sum((1, 2)) + bias[c])
         return keep, mu_at
 
     def forward(self, image: torch.Tensor | None, voxel: torch.Tensor, return_heads: bool = False):

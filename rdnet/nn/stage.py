@@ -155,7 +155,7 @@ class StageNet(nn.Module):
         both at the padded size H' x W' (module docstring), and the input size H x W.
         ``forward`` is ``(ending(x) [+ recv_in])[..., :H, :W]``; a caller that needs only
         some output channels, or only some pixels, applies ``self.ending`` to ``x`` itself
-        (:meth:`rdnet.nn.models.RestoreNet.kept_entries`)."""
+        (:meth:`rdnet.nn.models.RestoreNet.sparse_heads`)."""
         if self.image_branch is None:
             if image is not None:
                 raise ValueError("this stage has no image branch: pass image=None")

@@ -41,9 +41,11 @@ per-row cost dominated them), each NAFBlock folds its channel attention and its
 ``beta`` / ``gamma`` into the 1x1 convolutions' weights (:meth:`NAFBlock._folded`), and
 only the occupancy half of the output convolution runs densely, the count head being
 evaluated at the kept voxels alone (:meth:`rdnet.nn.models.RestoreNet.sparse_heads`; the
-kept voxels are exactly those of the dense heads). Network and decision went from about
-52 to 38 ms a DAVIS346 window on 2 cores (``benchmarks/bench_restore.py``); the numba
-kernel costs about 0.35 s once per process, when its compiled code is loaded.
+kept voxels are exactly those of the dense heads). End to end on one host
+(``benchmarks/bench_restore.py``, ``benchmarks/results/restore_learned_speed_inference.json``)
+the steady state went from 1.70 to 1.46 s per recording second and the night file from
+113 to 81 s; the numba kernel costs 0.3-0.5 s once per process, when its compiled code
+is loaded, so recordings shorter than about 2 s lose time.
 """
 from __future__ import annotations
 

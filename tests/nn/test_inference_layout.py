@@ -87,7 +87,7 @@ def test_layer_norm_rows_known_values_and_the_formula():
         layer_norm_rows(z.astype(np.float64), w, b, 1e-6)
 
 
-@pytest.mark.parametrize("c", [8, 40])          # below MAX_CHANNELS: the numba kernel; above: torch's
+@pytest.mark.parametrize("c", [8, 40])          # below NUMBA_NORM_MAX_CHANNELS: the numba kernel; above: torch's
 def test_layernorm_channels_last_inference_both_kernels(c):
     ln, x = _norm(2, c)
     with torch.inference_mode():
