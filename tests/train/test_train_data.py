@@ -76,6 +76,41 @@ def test_file_is_opened_lazily_and_dataset_pickles(pairs):
     ds.close()
 
 
+def _samples(ds, keys):
+    return [{k: v.clone() for k, v in ds[key].items()} for key in keys]
+
+
+@pytest.mark.parametrize("rows", [None, [4, 1, 5]])
+def test_preloaded_samples_equal_the_file_reads(pairs, monkeypatch, rows):
+    """In memory (the default for a small file) or read from the file per sample, a
+    dataset serves the same bytes: crops, flips, a subset of rows, per-polarity counts."""
+    import rdnet.train.data as data
+    keys = [(i, e) for i in range(3 if rows else 6) for e in range(3)]
+    preloaded = PairsDataset(pairs, crop=8, augment=True, seed=3, rows=rows)
+    a = _samples(preloaded, keys)
+    assert isinstance(preloaded._arrays, dict)
+    assert preloaded._arrays["blurry"].shape[0] == (3 if rows else 6)      # only its rows
+    monkeypatch.setattr(data, "PRELOAD_MAX_BYTES", 0)
+    from_file = PairsDataset(pairs, crop=8, augment=True, seed=3, rows=rows)
+    b = _samples(from_file, keys)
+    assert not isinstance(from_file._arrays, dict)
+    assert a[0].keys() == b[0].keys() and "counts_degraded" in a[0]
+    for x, y in zip(a, b):
+        for k in x:
+            assert torch.equal(x[k], y[k]), k
+
+
+def test_a_sample_edited_in_place_leaves_the_preloaded_rows_alone(pairs):
+    ds = PairsDataset(pairs, crop=None)                 # a full frame: the row itself, if not copied
+    s = ds[1]
+    before = s["voxel_degraded"].clone()
+    for v in s.values():
+        v.zero_()
+    assert torch.equal(ds[1]["voxel_degraded"], before) and before.abs().sum() > 0
+    state = pickle.loads(pickle.dumps(ds)).__dict__     # workers get no copy of the arrays
+    assert state["_arrays"] is None and state["_at"] is None
+
+
 def test_layout_errors_name_file_and_field(tmp_path, pairs):
     bad = tmp_path / "bad.h5"
     with h5py.File(pairs, "r") as src, h5py.File(bad, "w") as dst:
