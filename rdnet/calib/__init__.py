@@ -21,8 +21,20 @@ report.json schema::
      "basic_refit": {...}, "mismatch": {...}, "consistency": {...},
      "setup": {..., "simulations", "search": {"search_pixels", "search_stride", "kernel_runs", ...}}}
 """
-from rdnet.calib.calibrate import Calibration, calibrate, finding
-from rdnet.calib.effects import EFFECTS
-from rdnet.calib.settings import CalibrateConfig
+import importlib
 
-__all__ = ["EFFECTS", "Calibration", "CalibrateConfig", "calibrate", "finding"]
+#: names the package re-exports -> the module that defines them, imported on first use:
+#: reading params.yaml imports :mod:`rdnet.calib.settings` (the ``calibrate`` section),
+#: which must not pull in the calibration engine and numba (about 0.8 s at every CLI
+#: start). The function ``calibrate`` is not among them, since its name is also its module's:
+#: ``from rdnet.calib.calibrate import calibrate``.
+_LAZY = {"Calibration": "rdnet.calib.calibrate", "finding": "rdnet.calib.calibrate",
+         "EFFECTS": "rdnet.calib.effects", "CalibrateConfig": "rdnet.calib.settings"}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
