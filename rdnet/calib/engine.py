@@ -54,12 +54,9 @@ def randomize_reference(sensor: Sensor, degrade: DegradeConfig, u: np.ndarray,
     state of a pixel that has seen changes before the recording starts (the simulator's
     own start, ``ref = L0``, puts every pixel exactly between them). Without ``where`` a
     config with a leak keeps the sensor's own random leak phase."""
-    if where is None:
-        if degrade.leak_hz > 0:
-            return
-        sensor.ref[...] = sensor.s_prev + sensor.thr_off - u * (sensor.thr_on + sensor.thr_off)
+    if where is None and degrade.leak_hz > 0:
         return
-    m = np.asarray(where, bool)
+    m = np.ones(sensor.ref.shape, bool) if where is None else np.asarray(where, bool)
     if m.shape != sensor.ref.shape:
         raise ValueError(f"pixel mask {m.shape} does not match the sensor {sensor.ref.shape}")
     sensor.ref[m] = sensor.s_prev[m] + sensor.thr_off[m] - u[m] * (sensor.thr_on[m] + sensor.thr_off[m])
