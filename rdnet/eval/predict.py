@@ -19,7 +19,11 @@ restored *events* as (n, 2, bins, H, W) ON/OFF counts (the fitted occupancy thre
 for the count output, ``round`` for the signed one), scored by
 :func:`rdnet.eval.events.match_metrics` against ``counts_undegraded``. The restored
 voxels and events come from one stage-1 pass (:func:`rdnet.eval.stage1.run_stage1`), and
-a checkpoint file is read once per call (``loaded``: not at all).
+a checkpoint file is read once per call (``loaded``: not at all). A pairs file whose
+datasets fit in :data:`rdnet.train.data.PRELOAD_MAX_BYTES` is read whole once and kept in
+memory while it is unchanged (the last such file only; :func:`_pairs_rows`): the stress
+test and the restoration stage score many networks on one test file, and each row's
+compressed chunk was decompressed again for every one of them. The rows are the same bytes.
 
 ``voxel_transform(voxels, index) -> voxels`` (optional) replaces the input voxels of a
 batch before the network sees them: ``voxels`` (n, B, H, W) float32 numpy, ``index``
@@ -37,6 +41,7 @@ import torch
 
 from rdnet.errors import ConfigError
 from rdnet.eval import metrics as M
+from rdnet.sim.blur import POLARITY_KEYS
 from rdnet.train.data import EVENT_KINDS, read_pairs_info
 
 log = logging.getLogger(__name__)
@@ -82,6 +87,28 @@ def _load(kind, checkpoint, pairs_path, device, loaded) -> tuple:
     model = load_model(checkpoint, METHODS[kind], _device(device), bins=info.bins, image_channels=channels,
                        loaded=ck)
     return model, ck
+
+
+#: (path, inode, mtime, size) -> {dataset: array}: the last pairs file read whole (:func:`_pairs_rows`).
+_PAIRS_IN_MEMORY: dict = {}
+
+
+def _pairs_rows(f, pairs_path: str | Path, info) -> Mapping:
+    """name -> rows source of the open pairs file ``f``: its datasets as numpy arrays, read
+    whole on the first call for this file and kept until another file is read or this one
+    changes, when they fit in :data:`rdnet.train.data.PRELOAD_MAX_BYTES`; else ``f``."""
+    from rdnet.train import data as train_data
+    names = ("level", "blurry", "sharp", "voxel_undegraded", "voxel_degraded") + (
+        POLARITY_KEYS if info.has_counts else ())
+    planes = 2 * info.channels + (len(names) - 3) * info.bins
+    if info.n * planes * info.height * info.width * 4 > train_data.PRELOAD_MAX_BYTES:
+        return f
+    st = Path(pairs_path).stat()
+    key = (str(Path(pairs_path).resolve()), st.st_ino, st.st_mtime_ns, st.st_size)
+    if key not in _PAIRS_IN_MEMORY:
+        _PAIRS_IN_MEMORY.clear()
+        _PAIRS_IN_MEMORY[key] = {name: f[name][...] for name in names}
+    return _PAIRS_IN_MEMORY[key]
 
 
 def stage1_of(kind: str, model):
@@ -139,12 +166,13 @@ def iter_predictions(kind: str, model, pairs_path: str | Path, events: str = "de
         raise ConfigError("decision", f"method {kind!r} has no stage 1 to decide events for")
     bar = tqdm(total=int(rows.size), desc=f"predict {kind}", unit="sample", disable=(not progress) or None)
     with h5py.File(pairs_path, "r") as f, torch.inference_mode():
+        src = _pairs_rows(f, pairs_path, info)
         for s in range(0, rows.size, batch_size):
             idx = rows[s:s + batch_size]
             order = np.argsort(idx, kind="stable")          # h5py wants increasing indices
             uniq, inv = np.unique(idx[order], return_inverse=True)
             def read(name):
-                a = np.asarray(f[name][uniq.tolist()])
+                a = np.asarray(src[name][uniq.tolist()])
                 out = np.empty((idx.size,) + a.shape[1:], a.dtype)
                 out[order] = a[inv]
                 return out

@@ -105,3 +105,35 @@ def test_a_sample_without_motion_is_left_out_of_every_rows_image_means(tmp_path,
         assert row["per_sample"]["moving"] == [True, False, True, True]
         assert row["per_sample"]["psnr"][1] == np.inf    # the per-sample values keep it
         assert sum(b["n"] for b in row["by_level"]) == 4
+
+
+def test_pairs_held_in_memory_give_the_file_rows_and_follow_a_rewritten_file(tmp_path, monkeypatch):
+    """The rows read from memory (a small file, read whole once) equal those read from the
+    file, in any order and with repeats; a file rewritten in place is read again."""
+    import rdnet.eval.predict as P
+    import rdnet.train.data as D
+    from rdnet.eval.predict import iter_predictions
+    pairs = write_synthetic_pairs(tmp_path / "p.h5", n=6, channels=1, bins=3, height=12, width=16, seed=3)
+    rows = [5, 0, 3, 3, 1]
+
+    def batches():
+        return list(iter_predictions("blurry", None, pairs, indices=rows, batch_size=3, decision=None))
+
+    in_memory = batches()
+    assert len(P._PAIRS_IN_MEMORY) == 1
+    monkeypatch.setattr(D, "PRELOAD_MAX_BYTES", 0)
+    P._PAIRS_IN_MEMORY.clear()
+    from_file = batches()
+    assert not P._PAIRS_IN_MEMORY
+    for a, b in zip(in_memory, from_file, strict=True):
+        assert a.keys() == b.keys()
+        for k in a:
+            np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    monkeypatch.undo()
+    first = batches()[0]["sharp"]
+    write_synthetic_pairs(pairs, n=6, channels=1, bins=3, height=12, width=16, seed=4)    # same path, new rows
+    with h5py.File(pairs, "r") as f:
+        want = np.asarray(f["sharp"][5])
+    again = batches()[0]["sharp"]
+    np.testing.assert_array_equal(again[0], want)
+    assert not np.array_equal(again, first)
