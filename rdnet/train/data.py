@@ -7,10 +7,11 @@ fit in :data:`PRELOAD_MAX_BYTES` (the embedded study's whole training file is 10
 first access reads them into memory, in that process; otherwise each sample reads only its
 crop window from the file. The samples are the same bytes either way (tested). The pairs
 files are compressed in one chunk per row, so a crop read decompresses the row of every
-dataset again: on the study's 48-pixel crops that was about a fifth of each training
-stage's wall time (``benchmarks/bench_train_data.py``: 200 iterations, 3 seeds, the same
-model bytes; train_restore 50.6 -> 39.4 s, a deblurring baseline 44.8 -> 34.3 s, RDNet
-83.6 -> 74.5 s).
+dataset again: on the study's 48-pixel crops that was about a quarter of a stage-1 or
+deblurring training stage's wall time (``benchmarks/bench_stages.py``,
+``benchmarks/results/stages.json``: the study's settings, the same model bytes;
+train_restore 175.3 -> 132.1 s, a deblurring baseline 153.8 -> 112.9 s, RDNet 290.5 ->
+258.8 s).
 
 Randomness is explicit and stateless: the crop window and flips of a draw are a pure
 function of ``(seed, epoch, index)`` (``numpy.random.default_rng([seed, epoch, index])``),
