@@ -1,0 +1,85 @@
+"""How well the calibration's frame interpolation recovers the proof scene between frames
+(issue 12, the structural floor of the oversample4 and circuit blocks).
+
+In those blocks the "real" events come from frames rendered 4x denser than the 100 fps
+frames the tool sees; the tool upsamples the 100 fps frames (``calibrate.interpolation``:
+flow, linear) and simulates from them. Whatever the upsampled frames get wrong between
+two frames is a difference no effect of the sensor can explain. This script renders the
+proof scenes (:mod:`rdnet.calib.scene`, scene A and the proof's ``SCENE_B``, drift
+motion; also two coarser textures for scale) at 100 and 400 fps from one texture,
+upsamples the 100 fps frames with each method (:func:`rdnet.sim.interpolate.upsample_all`,
+the study's settings) and compares them, at the 400 fps times both have that lie
+between two 100 fps frames, with the 400 fps render: RMSE of the log intensity
+(``log(I + 0.01)``) over the moving rows, split into the 4 columns on either side of the
+static illumination edge (the dark left half meets the bright right half at the middle
+column) and all other columns, and the fraction of pixels off by more than 0.15 (about
+the size of a contrast threshold). For scale: the RMS log change between consecutive
+400 fps frames.
+
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/calib_interpolation_error.py
+    # -> benchmarks/results/calib_interpolation_error.{json,md}
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+EPS = 0.01
+EDGE_PX = 4
+
+
+def measure(spec, method: str, seed: int = 0) -> dict:
+    from rdnet.calib.scene import render
+    from rdnet.sim.interpolate import InterpolateConfig, upsample_all
+    rng = np.random.default_rng(seed)
+    coarse, tex = render(spec, rng)
+    fine, _ = render(spec, rng, fps_hz=spec.fps_hz * 4, texture=tex)
+    im, t = upsample_all(coarse.images, coarse.t_us, dataclasses.replace(InterpolateConfig(), method=method),
+                         EPS, warn=False)
+    common, i_up, i_fi = np.intersect1d(t, fine.t_us, return_indices=True)
+    between = np.isin(common, coarse.t_us, invert=True)
+    err = np.log(im[i_up][between].astype(np.float64) + EPS) - np.log(fine.images[i_fi][between].astype(np.float64) + EPS)
+    moving_rows = slice(int(round(spec.static_fraction * spec.height)), spec.height)
+    err = err[:, moving_rows, :]
+    cols = np.arange(spec.width)
+    edge = np.abs(cols - spec.width // 2) < EDGE_PX
+    fine_log = np.log(fine.images[:, moving_rows, :].astype(np.float64) + EPS)
+    rms = lambda a: float(np.sqrt(np.mean(a ** 2)))  # noqa: E731
+    return {"method": method, "upsampled_frames": int(len(t)), "compared_frames": int(between.sum()),
+            "rmse_log_all": rms(err), "rmse_log_edge_columns": rms(err[..., edge]),
+            "rmse_log_other_columns": rms(err[..., ~edge]),
+            "fraction_off_by_0.15": float(np.mean(np.abs(err) > 0.15)),
+            "fraction_off_by_0.15_other_columns": float(np.mean(np.abs(err[..., ~edge]) > 0.15)),
+            "rms_log_change_per_400fps_frame": rms(np.diff(fine_log, axis=0))}
+
+
+def main() -> int:
+    from rdnet.calib.proof import SCENE_B
+    from rdnet.calib.scene import SceneSpec
+    scenes = {"A (proof)": SceneSpec(), "B (proof)": dataclasses.replace(SceneSpec(), **dict(SCENE_B)),
+              "A, texture 3 px": SceneSpec(texture_px=3.0), "A, texture 6 px": SceneSpec(texture_px=6.0)}
+    rows = []
+    for name, spec in scenes.items():
+        for method in ("linear", "flow"):
+            rows.append({"scene": name, **measure(spec, method)})
+            print(json.dumps(rows[-1]), flush=True)
+    out = ROOT / "benchmarks" / "results" / "calib_interpolation_error"
+    out.with_suffix(".json").write_text(json.dumps({"benchmark": "calib_interpolation_error", "eps": EPS,
+                                                    "edge_px": EDGE_PX, "rows": rows}, indent=2) + "\n")
+    lines = ["| scene | method | upsampled frames | log RMSE, all | at the illumination edge | elsewhere "
+             "| off by > 0.15, elsewhere | RMS log change per 400 fps frame |", "|---|---|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r['scene']} | {r['method']} | {r['upsampled_frames']} | {r['rmse_log_all']:.4f} | "
+                     f"{r['rmse_log_edge_columns']:.4f} | {r['rmse_log_other_columns']:.4f} | "
+                     f"{100 * r['fraction_off_by_0.15_other_columns']:.2f} % | {r['rms_log_change_per_400fps_frame']:.4f} |")
+    out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
