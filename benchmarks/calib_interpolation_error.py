@@ -16,11 +16,19 @@ column) and all other columns, and the fraction of pixels off by more than 0.15 
 the size of a contrast threshold). For scale: the RMS log change between consecutive
 400 fps frames.
 
+Row ``flow, checked (prototype)``: an idea for the next round, not in the library. Flow
+is kept where it explains each frame from the other better than a cross-fade does (the
+log residual of the backward warp below min(|log f1 - log f0|, 0.3)), linear interpolation
+elsewhere (that mask dilated by one pixel), so a static illumination edge is cross-faded
+while the texture is warped. It patches :class:`rdnet.sim.interpolate.PairInterpolator`
+inside this script only (:func:`checked_flow`).
+
     PYTHONPATH=$PWD .venv/bin/python benchmarks/calib_interpolation_error.py
     # -> benchmarks/results/calib_interpolation_error.{json,md}
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import sys
@@ -31,6 +39,37 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 EPS = 0.01
 EDGE_PX = 4
+
+
+@contextlib.contextmanager
+def checked_flow(tau: float = 0.3):
+    """The ``flow, checked (prototype)`` interpolation (module docstring), while inside."""
+    import cv2
+
+    import rdnet.sim.interpolate as interp
+    plain = interp.PairInterpolator.frame
+
+    def frame(self, t):
+        out = plain(self, t)
+        if self.cfg.method != "flow":
+            return out
+        f01, f10, _, _, gx, gy = self._prepare()
+        if not hasattr(self, "_linear_mask"):
+            e = np.float32(EPS)
+            r1 = np.abs(np.log(self.f1 + e) - np.log(interp._remap(self.f0, gx, gy, f10) + e))
+            r0 = np.abs(np.log(self.f0 + e) - np.log(interp._remap(self.f1, gx, gy, f01) + e))
+            fade = np.abs(np.log(self.f1 + e) - np.log(self.f0 + e))
+            bad = np.maximum(r0, r1) > np.minimum(fade, tau)
+            self._linear_mask = cv2.dilate(bad.astype(np.float32), np.ones((3, 3), np.uint8))
+        m = self._linear_mask
+        linear = (1 - np.float32(t)) * self.f0 + np.float32(t) * self.f1
+        return (m * linear + (1 - m) * out).astype(np.float32)
+
+    interp.PairInterpolator.frame = frame
+    try:
+        yield
+    finally:
+        interp.PairInterpolator.frame = plain
 
 
 def measure(spec, method: str, seed: int = 0) -> dict:
@@ -65,8 +104,13 @@ def main() -> int:
               "A, texture 3 px": SceneSpec(texture_px=3.0), "A, texture 6 px": SceneSpec(texture_px=6.0)}
     rows = []
     for name, spec in scenes.items():
-        for method in ("linear", "flow"):
-            rows.append({"scene": name, **measure(spec, method)})
+        for method in ("linear", "flow", "flow, checked (prototype)"):
+            if method.startswith("flow, checked"):
+                with checked_flow():
+                    row = {**measure(spec, "flow"), "method": method}
+            else:
+                row = measure(spec, method)
+            rows.append({"scene": name, **row})
             print(json.dumps(rows[-1]), flush=True)
     out = ROOT / "benchmarks" / "results" / "calib_interpolation_error"
     out.with_suffix(".json").write_text(json.dumps({"benchmark": "calib_interpolation_error", "eps": EPS,
