@@ -41,8 +41,7 @@ import torch
 
 from rdnet.errors import ConfigError
 from rdnet.eval import metrics as M
-from rdnet.sim.blur import POLARITY_KEYS
-from rdnet.train.data import EVENT_KINDS, read_pairs_info
+from rdnet.train.data import EVENT_KINDS, read_pairs_info, read_rows_whole, sample_datasets
 
 log = logging.getLogger(__name__)
 
@@ -95,19 +94,17 @@ _PAIRS_IN_MEMORY: dict = {}
 
 def _pairs_rows(f, pairs_path: str | Path, info) -> Mapping:
     """name -> rows source of the open pairs file ``f``: its datasets as numpy arrays, read
-    whole on the first call for this file and kept until another file is read or this one
-    changes, when they fit in :data:`rdnet.train.data.PRELOAD_MAX_BYTES`; else ``f``."""
-    from rdnet.train import data as train_data
-    names = ("level", "blurry", "sharp", "voxel_undegraded", "voxel_degraded") + (
-        POLARITY_KEYS if info.has_counts else ())
-    planes = 2 * info.channels + (len(names) - 3) * info.bins
-    if info.n * planes * info.height * info.width * 4 > train_data.PRELOAD_MAX_BYTES:
-        return f
+    whole on the first call for this file (:func:`rdnet.train.data.read_rows_whole`) and
+    kept until another file is read or this one changes; ``f`` itself when they do not fit
+    in :data:`rdnet.train.data.PRELOAD_MAX_BYTES`."""
     st = Path(pairs_path).stat()
     key = (str(Path(pairs_path).resolve()), st.st_ino, st.st_mtime_ns, st.st_size)
     if key not in _PAIRS_IN_MEMORY:
         _PAIRS_IN_MEMORY.clear()
-        _PAIRS_IN_MEMORY[key] = {name: f[name][...] for name in names}
+        arrays = read_rows_whole(f, ("level",) + sample_datasets(info))
+        if arrays is None:
+            return f
+        _PAIRS_IN_MEMORY[key] = arrays
     return _PAIRS_IN_MEMORY[key]
 
 

@@ -204,10 +204,9 @@ def decided_entries(mu, logit, decision: Mapping | None) -> tuple[np.ndarray, np
     (:func:`rdnet.events.voxel.entry_events` turns them into events). The comparison
     ``logit >= logit_threshold(threshold)`` is the one dense pass; only the kept voxels
     are read after it."""
-    threshold = float(read_decision(decision, "counts")["threshold"])
     if mu.shape != logit.shape:
         raise ValidationError("decision", f"mu {tuple(mu.shape)} and logits {tuple(logit.shape)} differ")
-    lt = logit_threshold(threshold)
+    lt = _decision_logit(decision)
     if lt == float("inf"):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     return _kept_entries(logit >= lt, lambda *where: mu[where])
@@ -219,12 +218,17 @@ def sparse_decided_entries(stage1, image, counts, decision: Mapping | None) -> t
     :meth:`rdnet.nn.models.RestoreNet.sparse_heads`: the same voxels (the logits are
     computed as in the dense heads) and their counts from ``mu`` evaluated at those voxels
     only. Inference only (:mod:`rdnet.restore.learned`); call it under ``inference_mode``."""
-    threshold = float(read_decision(decision, "counts")["threshold"])
-    lt = logit_threshold(threshold)
+    lt = _decision_logit(decision)
     if lt == float("inf"):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     keep, mu_at = stage1.sparse_heads(image, counts, lt)
     return _kept_entries(keep, mu_at)
+
+
+def _decision_logit(decision: Mapping | None) -> float:
+    """The logit cut of a count-output ``decision`` (:func:`logit_threshold` of its
+    occupancy threshold; +inf keeps nothing)."""
+    return logit_threshold(float(read_decision(decision, "counts")["threshold"]))
 
 
 def _kept_entries(keep, mu_at) -> tuple[np.ndarray, np.ndarray]:

@@ -57,6 +57,24 @@ EVENT_KINDS = ("undegraded", "degraded")
 PRELOAD_MAX_BYTES = 1 << 30
 
 
+def sample_datasets(info: PairsInfo) -> tuple[str, ...]:
+    """The per-row image and voxel datasets of a pairs file that a sample reads (by
+    :class:`PairsDataset` and :func:`rdnet.eval.predict.iter_predictions`)."""
+    return ("blurry", "sharp", "voxel_undegraded", "voxel_degraded") + (POLARITY_KEYS if info.has_counts else ())
+
+
+def read_rows_whole(f, names, rows: np.ndarray | None = None) -> dict | None:
+    """``name -> numpy array`` of the datasets ``names`` of the open pairs file ``f`` at the
+    file rows ``rows`` (sorted and unique; None: every row), when together they fit in
+    :data:`PRELOAD_MAX_BYTES`; None when they do not (read them row by row instead)."""
+    n = f[names[0]].shape[0] if rows is None else len(rows)
+    nbytes = sum(n * f[k].dtype.itemsize * int(np.prod(f[k].shape[1:])) for k in names)
+    if nbytes > PRELOAD_MAX_BYTES:
+        return None
+    sel = slice(None) if rows is None else rows
+    return {k: f[k][sel] for k in names}
+
+
 @dataclass(frozen=True)
 class PairsInfo:
     """Shape of a pairs file: ``n`` samples of ``channels`` x ``height`` x ``width``
@@ -205,28 +223,21 @@ class PairsDataset(Dataset):
             self._arrays = self._at = None
         return self._file
 
-    def _names(self) -> tuple[str, ...]:
-        """The 4-d datasets a sample reads."""
-        names = ("blurry", "sharp", "voxel_undegraded", "voxel_degraded")
-        return names + (POLARITY_KEYS if self.info.has_counts else ())
-
     def _source(self, row: int) -> tuple:
         """``(source, i)``: where file row ``row`` is read from in this process -- the file's
         datasets at row ``row``, or, when this dataset's rows fit in
-        :data:`PRELOAD_MAX_BYTES`, numpy copies of them (read on first use) at their
-        position ``i`` among the sorted rows."""
+        :data:`PRELOAD_MAX_BYTES`, numpy copies of them (:func:`read_rows_whole`, on first
+        use) at their position ``i`` among the sorted rows."""
         f = self._h5()
         if self._arrays is None:
-            i = self.info
             rows = np.unique(self.rows)
-            planes = 2 * i.channels + len(self._names()[2:]) * i.bins
-            if rows.size * planes * i.height * i.width * 4 <= PRELOAD_MAX_BYTES:
-                sel = slice(None) if rows.size == i.n else rows
-                self._arrays = {name: f[name][sel] for name in self._names() + ("level",)}
-                self._at = np.zeros(i.n, np.int64)
-                self._at[rows] = np.arange(rows.size)
-            else:
+            names = sample_datasets(self.info) + ("level",)
+            arrays = read_rows_whole(f, names, None if rows.size == self.info.n else rows)
+            if arrays is None:
                 self._arrays, self._at = f, None
+            else:
+                self._arrays, self._at = arrays, np.zeros(self.info.n, np.int64)
+                self._at[rows] = np.arange(rows.size)
         return self._arrays, (row if self._at is None else int(self._at[row]))
 
     def __getstate__(self):
@@ -251,7 +262,7 @@ class PairsDataset(Dataset):
         f, at = self._source(index)
         win = (at, slice(None), slice(y0, y0 + ch), slice(x0, x0 + cw))
         out = {}
-        for name in self._names():
+        for name in sample_datasets(self.info):
             a = np.array(f[name][win], dtype=np.float32)     # a copy: never a view of the preloaded arrays
             if fh:
                 a = a[:, :, ::-1]
