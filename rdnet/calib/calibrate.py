@@ -273,8 +273,11 @@ def contexts_as_built(rec: Recording, cfg: CalibrateConfig, log_eps: float, inte
     if len(interps) == 1:
         yield 0, build_context(rec, cfg, log_eps, interpolate=interps[0], source=source)
         return
+    from rdnet.sim.interpolate import FLOW_METHODS, PairFlowCache
+    users = sum(icfg.method in FLOW_METHODS for icfg in interps)
+    flows = PairFlowCache(users) if users > 1 else None   # flow and selected warp with the same pair flows
     with ThreadPoolExecutor(max_workers=len(interps), thread_name_prefix="rdnet-calib-context") as pool:
-        futures = {pool.submit(build_context, rec, cfg, log_eps, interpolate=icfg, source=source): i
+        futures = {pool.submit(build_context, rec, cfg, log_eps, interpolate=icfg, source=source, flows=flows): i
                    for i, icfg in enumerate(interps)}
         for fut in as_completed(futures):
             yield futures[fut], fut.result()

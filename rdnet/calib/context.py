@@ -98,7 +98,7 @@ def subsample_events(ev: Events, stride: int) -> Events:
 
 def build_context(rec: Recording, cfg: CalibrateConfig, log_eps: float, *,
                   interpolate=None, stride: int | None = None,
-                  source: str = "recording") -> CalibContext:
+                  source: str = "recording", flows=None) -> CalibContext:
     """Check the recording (frames and events present and overlapping in time), upsample
     its frames (:func:`upsample_sampled`: flow at full resolution, warps only at the
     sampled pixels; ``interpolate``: an ``InterpolateConfig``, None = the default,
@@ -106,7 +106,8 @@ def build_context(rec: Recording, cfg: CalibrateConfig, log_eps: float, *,
     intensity-bin bookkeeping.
 
     The pixel stride is ``stride`` or ``cfg.pixel_stride``, raised until the upsampled
-    frames have at most ``cfg.max_sim_steps`` pixel-frames (0 = no limit)."""
+    frames have at most ``cfg.max_sim_steps`` pixel-frames (0 = no limit). ``flows``: a
+    :class:`rdnet.sim.interpolate.PairFlowCache` shared by the contexts of one recording."""
     frames = rec.require_frames(source)
     events = rec.require_events(source)
     if len(frames) < 2:
@@ -133,7 +134,7 @@ def build_context(rec: Recording, cfg: CalibrateConfig, log_eps: float, *,
             log.info("pixel stride %d -> %d to stay within calibrate.max_sim_steps=%d",
                      s, s * k, cfg.max_sim_steps)
             s *= k
-    sim_images, sim_t = upsample_sampled(grey_full, ft, interpolate, log_eps, s, cfg.max_upsample)
+    sim_images, sim_t = upsample_sampled(grey_full, ft, interpolate, log_eps, s, cfg.max_upsample, flows=flows)
     real = subsample_events(events.slice_time(t0, t1), s)
     return _assemble(grey_full[:, ::s, ::s], ft, sim_images, sim_t, real, s, t0, t1, cfg, log_eps, source)
 
@@ -213,7 +214,7 @@ def _upsampled_count(grey: np.ndarray, t: np.ndarray, interpolate, log_eps: floa
 
 
 def upsample_sampled(grey: np.ndarray, t: np.ndarray, interpolate, log_eps: float, stride: int,
-                     cap: int = 0) -> tuple[np.ndarray, np.ndarray]:
+                     cap: int = 0, flows=None) -> tuple[np.ndarray, np.ndarray]:
     """:func:`rdnet.sim.interpolate.upsample` on the pixel grid of every ``stride``-th
     row/column: the optical flow is estimated on the full-resolution pair (flow needs
     neighbours), but the intermediate frames are warped only at the sampled pixels, so
@@ -221,13 +222,14 @@ def upsample_sampled(grey: np.ndarray, t: np.ndarray, interpolate, log_eps: floa
     the cost. The adaptive count per pair follows ``upsample``: a first-order estimate
     from the full-resolution pair, checked on the sampled frames (the pixels that are
     simulated) and refined up to ``max_upsample`` (capped at ``cap``; a pair whose estimate
-    is already at the cap is not checked)."""
+    is already at the cap is not checked). ``flows``: pair flows shared with the other
+    interpolations of these frames (:class:`rdnet.sim.interpolate.PairFlowCache`)."""
     from rdnet.sim import interpolate as ip
     cfg = _interp_cfg(interpolate, cap)
     if stride == 1 or cfg.method == "none" or getattr(cfg, "fill_log", False):
         # nothing to save, or log-linear filling (decided on every pixel): the full sequence
         ims, ts = [], []
-        for im, tt in ip.upsample(grey, t, cfg, log_eps):
+        for im, tt in ip.upsample(grey, t, cfg, log_eps, flows=flows):
             ims.append(np.ascontiguousarray(im[:, ::stride, ::stride]))
             ts.append(tt)
         return np.concatenate(ims).astype(np.float32, copy=False), np.concatenate(ts).astype(np.int64)
@@ -236,11 +238,14 @@ def upsample_sampled(grey: np.ndarray, t: np.ndarray, interpolate, log_eps: floa
     ims, ts = [], []
     at_cap = 0
     n = grey.shape[0]
+    weight = ip.flow_weight(grey, t, cfg, eps) if cfg.method == "selected" else None
     for i in range(n - 1):
         f0, f1 = grey[i], grey[i + 1]
         dt = int(t[i + 1] - t[i])
         cap_i = min(cfg.max_upsample - 1, dt - 1)
-        pi = ip.PairInterpolator(f0, f1, cfg)
+        pi = ip.PairInterpolator(f0, f1, cfg, weight)
+        if flows is not None:
+            flows.share(i, pi)
         mid = np.empty((0,) + f0[::s, ::s].shape, np.float32)
         if cap_i > 0:
             k = min(cap_i, max(0, math.ceil(pi.motion_estimate(eps, cfg.pixel_quantile) / cfg.max_log_step) - 1))
@@ -270,29 +275,15 @@ def upsample_sampled(grey: np.ndarray, t: np.ndarray, interpolate, log_eps: floa
 
 
 def _sampled_frames(pi, n_inserted: int, s: int) -> np.ndarray:
-    """``pi.frames(n_inserted)`` at every ``s``-th pixel. For the flow method the
-    interpolator's flows and sampling grid are swapped for their sampled versions while
-    the source images and occlusion masks stay at full resolution, so every output pixel
-    is computed exactly as at full resolution (cv2.remap evaluates each output pixel from
-    its own map entry)."""
+    """``pi.frames(n_inserted)`` at every ``s``-th pixel, each pixel computed exactly as at
+    full resolution (:meth:`rdnet.sim.interpolate.PairInterpolator.on_grid`)."""
     h, w = pi.f0[::s, ::s].shape[:2]
     out = np.empty((n_inserted, h, w), np.float32)
     if n_inserted == 0:
         return out
-    if pi.cfg.method != "flow":
-        for j in range(n_inserted):
-            out[j] = pi.frame((j + 1) / (n_inserted + 1))[::s, ::s]
-        return out
-    full = pi._prepare()
-    f01, f10, o0, o1, gx, gy = full
-    sub = (np.ascontiguousarray(f01[::s, ::s]), np.ascontiguousarray(f10[::s, ::s]), o0, o1,
-           np.ascontiguousarray(gx[::s, ::s]), np.ascontiguousarray(gy[::s, ::s]))
-    pi._flows = sub
-    try:
+    with pi.on_grid(s):
         for j in range(n_inserted):
             out[j] = pi.frame((j + 1) / (n_inserted + 1))
-    finally:
-        pi._flows = full
     return out
 
 

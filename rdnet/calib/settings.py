@@ -51,7 +51,7 @@ class CalibrateConfig:
     single-threaded: a parallel region waits for its slowest thread). ``candidates``: the
     left-out effects to test (names of :data:`rdnet.calib.effects.EFFECTS`; empty = all of
     them). ``interpolation``: frame-interpolation methods (``interpolate.method``: flow,
-    linear) tried as a nuisance choice in the basic refit: the recording is upsampled with
+    linear, selected) tried as a nuisance choice in the basic refit: the recording is upsampled with
     each, the configured parameters are re-fitted and the left-out effects screened on each,
     and the one with the lowest reachable fit-segment discrepancy (the basic refit's, lowered
     by the share its best screened effect removes) is kept for everything after (reported
@@ -91,7 +91,7 @@ class CalibrateConfig:
     max_upsample: int = 16
     threads: int = 1
     candidates: Tuple[str, ...] = ()
-    interpolation: Tuple[str, ...] = ("flow", "linear")
+    interpolation: Tuple[str, ...] = ("flow", "linear", "selected")
     random_reference: bool = True
     warmup_us: int = 0
 
@@ -111,8 +111,9 @@ class CalibrateConfig:
         object.__setattr__(self, "candidates", tuple(self.candidates))
         object.__setattr__(self, "interpolation", tuple(self.interpolation))
         for m in self.interpolation:
-            if m not in ("flow", "linear", "none"):
-                raise ConfigError("calibrate.interpolation", f"unknown method {m!r}; known: flow, linear, none")
+            from rdnet.sim.interpolate import METHODS
+            if m not in METHODS:
+                raise ConfigError("calibrate.interpolation", f"unknown method {m!r}; known: {', '.join(METHODS)}")
         if len(set(self.interpolation)) != len(self.interpolation):
             raise ConfigError("calibrate.interpolation", f"duplicate method in {list(self.interpolation)}")
         from rdnet.calib.effects import EFFECTS

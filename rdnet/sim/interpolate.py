@@ -28,6 +28,17 @@ Interpolators:
   occluded pixel to the other input right after t = 0: log steps of up to 2.8 that no
   upsampling removes; benchmarks/bench_interpolate.py).
 * ``linear``: plain blending ``(1 - t) I_0 + t I_1`` (baseline / fallback).
+* ``selected``: ``flow`` where the flow predicts this sequence's frames better than a
+  cross-fade, ``linear`` elsewhere (:func:`flow_weight`): every inner frame is predicted
+  from its two neighbours by both methods, each method's squared log-luminance error is
+  summed over the frames and smoothed (Gaussian, ``select_sigma_px``), the pixels where
+  flow's is lower get weight 1, the others 0, and that map, blurred by half the sigma,
+  weights the flow frame against the linear one at every pixel. It is meant for scenes
+  whose motion and lighting differ in kind: flow warps everything it sees, so it drags a
+  still shadow edge along with the textured surface moving under it, while a cross-fade
+  keeps such an edge in place but turns motion into a fade (issue 12;
+  ``benchmarks/calib_interpolation_error.py``). Fewer than 3 frames give no prediction
+  to compare: flow everywhere.
 * ``none``: no frames inserted.
 
 All arrays are float32 linear intensity; colour frames (N, H, W, 3) are warped per
@@ -49,10 +60,12 @@ every pixel at the price of more steps. :class:`UpsampleStats` reports what was 
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import math
 import threading
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Iterator, Literal, Optional
 
@@ -69,11 +82,19 @@ _LUMA = np.array([0.299, 0.587, 0.114], np.float32)
 _FB_ALPHA1, _FB_ALPHA2 = 0.01, 0.5
 
 
+#: ``interpolate.method`` values (:class:`InterpolateConfig`).
+METHODS = ("flow", "linear", "selected", "none")
+#: the methods that compute an optical flow
+FLOW_METHODS = ("flow", "selected")
+
+
 @dataclass(frozen=True)
 class InterpolateConfig:
     """``interpolate`` section.
 
-    ``method``: 'flow' (optical-flow warping), 'linear' (blending) or 'none'.
+    ``method``: 'flow' (optical-flow warping), 'linear' (blending), 'selected' (flow
+    where it predicts the sequence's own frames better than blending, blending elsewhere:
+    module docstring) or 'none'.
     ``flow``: optical-flow algorithm, 'dis' (cv2.DISOpticalFlow) or 'farneback'.
     ``dis_preset``: DIS speed/quality preset ('ultrafast', 'fast', 'medium').
     ``dis_finest_scale``: finest pyramid level DIS computes the flow on (None: the
@@ -89,12 +110,14 @@ class InterpolateConfig:
     ``occlusion``: use the forward-backward check to weight the two warps.
     ``verify``: measure the bound on the produced frames and refine the count if violated
     (otherwise the first estimate is used).
+    ``select_sigma_px``: 'selected' only: the Gaussian sigma (pixels) over which the two
+    methods' prediction errors are pooled before choosing (:func:`flow_weight`).
     ``fill_log``: final guarantee. Where the frames at ``max_upsample`` still exceed the
     bound, insert log-linear frames until every pixel meets it (see the module
     docstring; limited only by integer-microsecond timestamps).
     """
 
-    method: Literal["flow", "linear", "none"] = "flow"
+    method: Literal["flow", "linear", "selected", "none"] = "flow"
     flow: Literal["dis", "farneback"] = "dis"
     dis_preset: Literal["ultrafast", "fast", "medium"] = "medium"
     dis_finest_scale: Optional[int] = None
@@ -105,10 +128,12 @@ class InterpolateConfig:
     occlusion: bool = True
     verify: bool = True
     fill_log: bool = False
+    select_sigma_px: float = 4.0
 
     def __post_init__(self):
-        if self.method not in ("flow", "linear", "none"):
-            raise ConfigError("interpolate.method", f"must be flow, linear or none, got {self.method!r}")
+        if self.method not in METHODS:
+            raise ConfigError("interpolate.method", f"must be one of {', '.join(METHODS)}, got {self.method!r}")
+        positive("interpolate.select_sigma_px", self.select_sigma_px, allow_zero=False)
         if self.flow not in ("dis", "farneback"):
             raise ConfigError("interpolate.flow", f"must be dis or farneback, got {self.flow!r}")
         if self.dis_preset not in ("ultrafast", "fast", "medium"):
@@ -389,9 +414,9 @@ def _flow_of_u8(ua: np.ndarray, ub: np.ndarray, cfg: InterpolateConfig) -> np.nd
 
 
 def fit_to_size(cfg: InterpolateConfig, shape: tuple[int, ...], *, warn: bool = True) -> InterpolateConfig:
-    """``cfg`` for frames of ``shape`` ((H, W[, 3])): method 'flow' becomes 'linear' (with a
-    warning) when the frames are smaller than the flow accepts (:func:`flow_fits`)."""
-    if cfg.method != "flow" or flow_fits(shape):
+    """``cfg`` for frames of ``shape`` ((H, W[, 3])): method 'flow' or 'selected' becomes
+    'linear' (with a warning) when the frames are smaller than the flow accepts (:func:`flow_fits`)."""
+    if cfg.method not in FLOW_METHODS or flow_fits(shape):
         return cfg
     if warn:
         log.warning("%d x %d frames are too small for the optical flow (both sides must be >= %d px): "
@@ -430,7 +455,10 @@ class PairInterpolator:
     """Intermediate frames between ``f0`` and ``f1`` (flows computed once, reused when the
     adaptive loop asks for another count)."""
 
-    def __init__(self, f0: np.ndarray, f1: np.ndarray, cfg: InterpolateConfig):
+    def __init__(self, f0: np.ndarray, f1: np.ndarray, cfg: InterpolateConfig,
+                 flow_weight: np.ndarray | None = None):
+        """``flow_weight`` (H, W) in [0, 1]: method 'selected' only, the weight of the flow
+        frame against the linear one at each pixel (:func:`flow_weight`; None: 1 everywhere)."""
         self.f0 = _as_float(f0, "f0")
         self.f1 = _as_float(f1, "f1")
         if self.f0.shape != self.f1.shape:
@@ -438,6 +466,40 @@ class PairInterpolator:
         self.cfg = cfg
         self.color = self.f0.ndim == 3
         self._flows = None
+        w = None
+        if cfg.method == "selected" and flow_weight is not None:
+            w = np.asarray(flow_weight, np.float32)
+            if w.shape != self.f0.shape[:2]:
+                raise ValidationError("flow_weight", f"shape {w.shape} != frame shape {self.f0.shape[:2]}")
+            w = w[..., None] if self.color else w
+        # the arrays ``frame`` blends (swapped for their sampled views by ``on_grid``)
+        self._blend = (self.f0, self.f1, w)
+
+    @property
+    def uses_flow(self) -> bool:
+        return self.cfg.method in FLOW_METHODS
+
+    @contextlib.contextmanager
+    def on_grid(self, s: int):
+        """Inside, :meth:`frame` gives every ``s``-th row and column of the full frame, each
+        output pixel computed exactly as at full resolution: the flows, sampling grid and
+        blend inputs are swapped for their sampled versions while the warped source images
+        and occlusion masks stay whole (``cv2.remap`` evaluates each output pixel from its own
+        map entry)."""
+        blend = self._blend
+        full = self._prepare() if self.uses_flow else None
+        f0, f1, w = blend
+        self._blend = (f0[::s, ::s], f1[::s, ::s], None if w is None else w[::s, ::s])
+        if full is not None:
+            f01, f10, o0, o1, gx, gy = full
+            self._flows = (np.ascontiguousarray(f01[::s, ::s]), np.ascontiguousarray(f10[::s, ::s]), o0, o1,
+                           np.ascontiguousarray(gx[::s, ::s]), np.ascontiguousarray(gy[::s, ::s]))
+        try:
+            yield self
+        finally:
+            self._blend = blend
+            if full is not None:
+                self._flows = full
 
     def _prepare(self):
         if self._flows is None:
@@ -460,7 +522,7 @@ class PairInterpolator:
         l0 = np.log(luminance(self.f0) + np.float32(log_eps))
         l1 = np.log(luminance(self.f1) + np.float32(log_eps))
         est = np.abs(l1 - l0)
-        if self.cfg.method == "flow":
+        if self.uses_flow:
             f01 = self._prepare()[0]
             gx = cv2.Sobel(l0, cv2.CV_32F, 1, 0, ksize=3) / 8.0
             gy = cv2.Sobel(l0, cv2.CV_32F, 0, 1, ksize=3) / 8.0
@@ -469,10 +531,18 @@ class PairInterpolator:
 
     def frame(self, t: float) -> np.ndarray:
         """The frame at fraction ``t`` in (0, 1) of the interval."""
-        f0, f1 = self.f0, self.f1
+        b0, b1, weight = self._blend
         t = np.float32(t)
-        if self.cfg.method != "flow":
-            return (1 - t) * f0 + t * f1
+        if not self.uses_flow:
+            return (1 - t) * b0 + t * b1
+        out = self._warped(t)
+        if weight is None:
+            return out
+        return (weight * out + (1 - weight) * ((1 - t) * b0 + t * b1)).astype(np.float32)
+
+    def _warped(self, t: np.float32) -> np.ndarray:
+        """The flow frame at ``t`` (module docstring)."""
+        f0, f1 = self.f0, self.f1
         f01, f10, o0, o1, gx, gy = self._prepare()
         ft0 = -(1 - t) * t * f01 + t * t * f10          # Super SloMo Eq. 4
         ft1 = (1 - t) * (1 - t) * f01 - t * (1 - t) * f10
@@ -499,6 +569,78 @@ class PairInterpolator:
         for k in range(n_inserted):
             out[k] = self.frame((k + 1) / (n_inserted + 1))
         return out
+
+
+class PairFlowCache:
+    """The flows of each frame pair, computed once for several interpolations of the same
+    frames (methods 'flow' and 'selected' warp with the same pair flows), also when they are
+    built at the same time in threads (the second waits for the first). Only for one frame
+    sequence: a pair is known by its index and the flow settings. ``users``: how many
+    interpolations will ask for each pair; a pair's flows are dropped once all have them,
+    so the cache holds only the pairs in progress."""
+
+    def __init__(self, users: int):
+        self._lock = threading.Lock()
+        self._pending: dict = {}
+        self._left: dict = {}
+        self.users = int(users)
+
+    def share(self, index: int, pi: "PairInterpolator") -> None:
+        """Give ``pi`` (pair ``index``) the flows of that pair, computing them on first use."""
+        if not pi.uses_flow:
+            return
+        c = pi.cfg
+        key = (int(index), pi.f0.shape, c.flow, c.dis_preset, c.dis_finest_scale, c.occlusion)
+        with self._lock:
+            fut = self._pending.get(key)
+            owner = fut is None
+            if owner:
+                fut = self._pending[key] = Future()
+                self._left[key] = self.users
+            self._left[key] -= 1
+            if self._left[key] <= 0:            # the last user: nothing keeps it after this
+                del self._pending[key], self._left[key]
+        if owner:
+            try:
+                fut.set_result(pi._prepare())
+            except BaseException as e:
+                fut.set_exception(e)
+                raise
+        pi._flows = fut.result()
+
+
+def flow_weight(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig, log_eps: float = 0.01
+                ) -> np.ndarray:
+    """The per-pixel weight of the flow frame of method 'selected' (module docstring), (H, W)
+    float32 in [0, 1]: every inner frame ``i`` of ``images`` ((N, H, W[, 3]) linear) is
+    predicted at its own time from frames ``i - 1`` and ``i + 1`` by flow and by linear
+    blending; ``E_m`` = the squared error of ``log(Y + eps)`` (luminance) summed over the
+    frames; weight 1 where ``G * E_flow < G * E_linear`` (``G``: a Gaussian of sigma
+    ``cfg.select_sigma_px``), else 0, then blurred by a Gaussian of half that sigma. With
+    fewer than 3 frames: 1 everywhere. The predictions span two intervals, so they test
+    each method on twice the motion it will interpolate; the choice is made once per
+    sequence, from its own frames (``log_eps``: the sensor's unless ``cfg.log_eps``)."""
+    images = np.asarray(images)
+    n, shape = images.shape[0], images.shape[1:3]
+    if n < 3:
+        return np.ones(shape, np.float32)
+    eps = np.float32(cfg.log_eps if cfg.log_eps is not None else log_eps)
+    t = np.asarray(t_us, np.int64)
+    flow = dataclasses.replace(cfg, method="flow")
+    err_flow = np.zeros(shape, np.float64)
+    err_linear = np.zeros(shape, np.float64)
+    for i in range(1, n - 1):
+        pi = PairInterpolator(images[i - 1], images[i + 1], flow)
+        s = (t[i] - t[i - 1]) / (t[i + 1] - t[i - 1])
+        truth = np.log(luminance(_as_float(images[i])) + eps)
+        err_flow += np.square(np.log(luminance(pi.frame(s)) + eps) - truth)
+        blend = (1 - np.float32(s)) * pi.f0 + np.float32(s) * pi.f1
+        err_linear += np.square(np.log(luminance(blend) + eps) - truth)
+    sigma = float(cfg.select_sigma_px)
+    pooled_flow = cv2.GaussianBlur(err_flow.astype(np.float32), (0, 0), sigma)
+    pooled_linear = cv2.GaussianBlur(err_linear.astype(np.float32), (0, 0), sigma)
+    chosen = (pooled_flow < pooled_linear).astype(np.float32)
+    return np.clip(cv2.GaussianBlur(chosen, (0, 0), sigma / 2), 0.0, 1.0)
 
 
 def interpolate_pair(f0: np.ndarray, f1: np.ndarray, n_inserted: int,
@@ -578,7 +720,7 @@ def fill_log(chain: np.ndarray, t_us: np.ndarray, log_eps: float, bound: float
 
 def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = InterpolateConfig(),
              log_eps: float = 0.01, *, stats: UpsampleStats | None = None, warn: bool = True,
-             with_log: bool = False) -> Iterator[tuple]:
+             with_log: bool = False, flows: PairFlowCache | None = None) -> Iterator[tuple]:
     """Stream the adaptively upsampled sequence pair by pair.
 
     ``images``: (N, H, W) or (N, H, W, 3) float32 linear; ``t_us``: (N,) int64 strictly
@@ -593,7 +735,8 @@ def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = Inte
     stream many calls). ``with_log``: yield ``(images_chunk, t_chunk, log_chunk)`` where
     ``log_chunk`` is ``log(images_chunk + eps)`` (float32, what the sensor computes from
     the frames) when it was computed anyway for the statistics (grey frames, nothing
-    inserted), else None.
+    inserted), else None. ``flows``: pair flows shared with other interpolations of the same
+    frames (:class:`PairFlowCache`).
     """
     images = np.asarray(images)
     t_us = np.asarray(t_us)
@@ -628,6 +771,7 @@ def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = Inte
         if warn:
             warn_if_over(here, cfg)
         return
+    weight = flow_weight(images, t_us, cfg, eps) if cfg.method == "selected" else None
     next_f0 = prev_log = None
     for i in range(n - 1):
         f0 = _as_float(images[i]) if next_f0 is None else next_f0
@@ -637,7 +781,10 @@ def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = Inte
         if cfg.method == "none" or cap <= 0:
             mid, steps, crit = np.empty((0,) + f0.shape, np.float32), None, None
         else:
-            mid, steps, crit = _adaptive(PairInterpolator(f0, f1, cfg), cap, eps, cfg, sts)
+            pi = PairInterpolator(f0, f1, cfg, weight)
+            if flows is not None:
+                flows.share(i, pi)
+            mid, steps, crit = _adaptive(pi, cap, eps, cfg, sts)
         k = mid.shape[0]
         t_mid = t_us[i] + np.rint(np.arange(1, k + 1) * (dt / (k + 1))).astype(np.int64)
         chain = np.concatenate([f0[None], mid, f1[None]])

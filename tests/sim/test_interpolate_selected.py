@@ -1,0 +1,143 @@
+"""Method 'selected' of rdnet.sim.interpolate: flow where the sequence's own frames say it
+predicts better than a cross-fade, linear elsewhere (flow_weight)."""
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+
+from rdnet.errors import ConfigError, ValidationError
+from rdnet.sim.interpolate import InterpolateConfig, PairInterpolator, flow_weight, upsample_all
+from rdnet.sim.scenes import procedural_texture
+
+
+@pytest.fixture(scope="module")
+def texture():
+    tex = procedural_texture("noise", 128, 160, np.random.default_rng(3))[..., 1]
+    return np.ascontiguousarray(cv2.GaussianBlur(tex, (0, 0), 1.5)) * 0.8 + 0.1
+
+
+def _moving(tex, n, step_px, h=64, w=64, margin=24):
+    out = []
+    for i in range(n):
+        m = np.float32([[1, 0, margin + step_px * i], [0, 1, margin]])
+        out.append(cv2.warpAffine(tex, m, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP))
+    return np.stack(out).astype(np.float32)
+
+
+def test_weights_pure_flow_and_pure_linear_frames(texture):
+    f0, f1 = _moving(texture, 2, 3.0)
+    for w, method in ((1.0, "flow"), (0.0, "linear")):
+        sel = PairInterpolator(f0, f1, InterpolateConfig(method="selected"), np.full(f0.shape, w, np.float32))
+        ref = PairInterpolator(f0, f1, InterpolateConfig(method=method))
+        for t in (0.25, 0.5):
+            np.testing.assert_array_equal(sel.frame(t), ref.frame(t))
+    # no weight given: flow everywhere
+    np.testing.assert_array_equal(PairInterpolator(f0, f1, InterpolateConfig(method="selected")).frame(0.3),
+                                  PairInterpolator(f0, f1, InterpolateConfig(method="flow")).frame(0.3))
+
+
+def test_translation_chooses_flow_and_a_brightness_ramp_chooses_the_cross_fade(texture):
+    moving = _moving(texture, 6, 3.0)
+    t = np.arange(6, dtype=np.int64) * 10_000
+    w = flow_weight(moving, t, InterpolateConfig(method="selected"))
+    assert w.shape == moving.shape[1:] and w.dtype == np.float32
+    assert 0.0 <= w.min() and w.max() <= 1.0
+    assert w[8:-8, 8:-8].mean() > 0.9               # the texture moves: flow predicts it
+    # a still scene whose brightness ramps linearly: the cross-fade is exact, flow cannot beat it
+    still = moving[0][None] * np.linspace(0.5, 1.0, 6, dtype=np.float32)[:, None, None]
+    assert flow_weight(still, t, InterpolateConfig(method="selected")).max() < 0.5
+    # fewer than 3 frames: nothing to compare, flow everywhere
+    np.testing.assert_array_equal(flow_weight(moving[:2], t[:2], InterpolateConfig()), np.ones((64, 64), np.float32))
+
+
+def test_a_still_shadow_edge_stays_put_while_the_texture_moves():
+    """The proof's scene B (a texture drifting under a still illumination edge), rendered at
+    100 and 400 fps: upsampled from 100 fps, 'selected' is closer to the 400 fps frames than
+    linear (which fades the texture) and than flow (which drags the edge)."""
+    from rdnet.calib.proof import SCENE_B
+    from rdnet.calib.scene import SceneSpec, render
+    spec = dataclasses.replace(SceneSpec(), duration_us=200_000, **dict(SCENE_B))
+    rng = np.random.default_rng(0)
+    coarse, tex = render(spec, rng)
+    fine, _ = render(spec, rng, fps_hz=spec.fps_hz * 4, texture=tex)
+    err = {}
+    for method in ("linear", "flow", "selected"):
+        im, t = upsample_all(coarse.images, coarse.t_us, InterpolateConfig(method=method), 0.01, warn=False)
+        common, i_up, i_fine = np.intersect1d(t, fine.t_us, return_indices=True)
+        between = np.isin(common, coarse.t_us, invert=True)
+        assert between.sum() > 5
+        d = np.log(im[i_up][between] + 0.01) - np.log(fine.images[i_fine][between] + 0.01)
+        err[method] = float(np.sqrt(np.mean(d ** 2)))
+    assert err["selected"] < 0.8 * err["linear"], err
+    assert err["selected"] < 0.5 * err["flow"], err
+
+
+def test_sampled_grid_equals_the_full_frame_sampled(texture):
+    frames = _moving(texture, 4, 2.5)
+    t = np.arange(4, dtype=np.int64) * 10_000
+    cfg = InterpolateConfig(method="selected")
+    w = flow_weight(frames, t, cfg)
+    w[:, :20] = 0.3                                  # a weight that is neither 0 nor 1 somewhere
+    pi = PairInterpolator(frames[1], frames[2], cfg, w)
+    full = pi.frame(0.4)
+    with pi.on_grid(3):
+        sampled = pi.frame(0.4)
+    np.testing.assert_allclose(sampled, full[::3, ::3], rtol=1e-6, atol=1e-7)
+    np.testing.assert_array_equal(pi.frame(0.4), full)          # restored on leaving
+
+
+def test_calibration_context_upsamples_selected_on_its_pixel_sample(texture):
+    from rdnet.calib.context import upsample_sampled
+    frames = _moving(texture, 5, 2.0)
+    t = np.arange(5, dtype=np.int64) * 10_000
+    cfg = InterpolateConfig(method="selected", max_upsample=4)
+    full, tf = upsample_sampled(frames, t, cfg, 0.01, 1)
+    sub, ts = upsample_sampled(frames, t, dataclasses.replace(cfg, verify=False), 0.01, 2)
+    assert full.shape[1:] == (64, 64) and sub.shape[1:] == (32, 32)
+    unverified, tu = upsample_sampled(frames, t, dataclasses.replace(cfg, verify=False), 0.01, 1)
+    np.testing.assert_array_equal(ts, tu)
+    np.testing.assert_allclose(sub, unverified[:, ::2, ::2], rtol=1e-6, atol=1e-7)
+
+
+def test_bad_settings_and_weight_shape():
+    with pytest.raises(ConfigError, match="select_sigma_px"):
+        InterpolateConfig(method="selected", select_sigma_px=0)
+    with pytest.raises(ConfigError, match="interpolate.method"):
+        InterpolateConfig(method="chosen")
+    f = np.zeros((16, 16), np.float32)
+    with pytest.raises(ValidationError, match="flow_weight"):
+        PairInterpolator(f, f, InterpolateConfig(method="selected"), np.ones((8, 8), np.float32))
+    from rdnet.calib.settings import CalibrateConfig
+    assert CalibrateConfig(interpolation=("selected", "linear")).interpolation == ("selected", "linear")
+    with pytest.raises(ConfigError, match="calibrate.interpolation"):
+        CalibrateConfig(interpolation=("warp",))
+
+
+def test_pair_flow_cache_computes_each_pair_once_across_threads(texture, monkeypatch):
+    """flow and selected share a pair's flows (rdnet.calib builds both contexts in threads):
+    each pair is computed once, and each interpolator gets exactly its own flows."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import rdnet.sim.interpolate as ip
+    frames = _moving(texture, 4, 2.0)
+    calls = []
+    plain = ip._flows_both_ways
+    monkeypatch.setattr(ip, "_flows_both_ways", lambda *a: calls.append(1) or plain(*a))
+    cache = ip.PairFlowCache(users=2)
+
+    def frames_of(method):
+        out = []
+        for i in range(3):
+            pi = PairInterpolator(frames[i], frames[i + 1], InterpolateConfig(method=method))
+            cache.share(i, pi)
+            out.append(pi.frame(0.5))
+        return out
+
+    with ThreadPoolExecutor(2) as pool:
+        shared = list(pool.map(frames_of, ["flow", "selected"]))
+    assert len(calls) == 3 and not cache._pending          # once per pair, nothing kept after
+    own = [PairInterpolator(frames[i], frames[i + 1], InterpolateConfig(method="flow")).frame(0.5) for i in range(3)]
+    for a, b, c in zip(shared[0], shared[1], own):
+        np.testing.assert_array_equal(a, c)
+        np.testing.assert_array_equal(b, c)                 # no weight: selected is flow
