@@ -39,7 +39,7 @@ predictions, so here its weight is cross-fitted: computed from the frames of one
 the recording and used on the other half's held-out frames.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/calib_interpolation_error.py
-    # -> benchmarks/results/calib_interpolation_error.{json,md}
+    # -> benchmarks/results/calib_interpolation_error.{json,md,png} (png: where selected keeps flow)
 """
 from __future__ import annotations
 
@@ -140,6 +140,41 @@ def measure_real(method: str) -> dict:
             "fraction_off_by_0.15": float(np.mean(np.abs(err) > 0.15))}
 
 
+def weight_figure(scenes: dict, path: Path) -> None:
+    """``path``: for proof scenes A and B and the DAVIS346 road frames, a frame and the
+    ``selected`` weight of flow (:func:`rdnet.sim.interpolate.flow_weight`, default sigma)
+    computed from all of its frames (white: flow, black: cross-fade)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from rdnet.calib.scene import render
+    from rdnet.events.io.stream import open_events
+    from rdnet.sim.interpolate import flow_weight
+    cfg = _config("selected")
+    panels = []
+    for name in ("A (proof)", "B (proof)"):
+        coarse, _ = render(scenes[name], np.random.default_rng(0))
+        panels.append((f"scene {name}", coarse.images[len(coarse.images) // 2],
+                       flow_weight(coarse.images, coarse.t_us, cfg, EPS)))
+    with open_events(ROOT / "data" / "real" / "davis346_road" / "davis346.aedat4") as src:
+        frames = src.frames()
+        grey, t = frames.grey().astype(np.float32), frames.t_us
+    panels.append(("DAVIS346 road", grey[len(grey) // 2], flow_weight(grey, t, cfg, EPS)))
+    fig, axes = plt.subplots(2, len(panels), figsize=(3.4 * len(panels), 5.6), squeeze=False)
+    for j, (title, frame, w) in enumerate(panels):
+        axes[0, j].imshow(np.log(frame + EPS), cmap="gray")
+        axes[0, j].set_title(f"{title}: log frame", fontsize=9)
+        im = axes[1, j].imshow(w, cmap="gray", vmin=0, vmax=1)
+        axes[1, j].set_title(f"weight of flow (mean {w.mean():.2f})", fontsize=9)
+        for a in axes[:, j]:
+            a.set_xticks([])
+            a.set_yticks([])
+    fig.colorbar(im, ax=axes[1, :].tolist(), shrink=0.8, label="1 = flow, 0 = cross-fade")
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+
+
 def _each_method(fn, *args) -> list[dict]:
     rows = []
     for method in ("linear", "flow", *SELECTED, "flow, checked (prototype)"):
@@ -175,6 +210,7 @@ def main() -> int:
     lines += [f"| {r['method']} | {r['held_out_frames']} | {r['rmse_log_all']:.4f} | "
               f"{100 * r['fraction_off_by_0.15']:.2f} % |" for r in real]
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    weight_figure(scenes, out.with_suffix(".png"))
     return 0
 
 
