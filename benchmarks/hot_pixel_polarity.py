@@ -1,0 +1,85 @@
+"""Which polarity do real hot pixels fire? (issue 12: the hot-pixel models of rdnet and of
+the independent circuit generator disagree, and the calibration reports the difference as a
+second effect, ON/OFF asymmetry, in the circuit's hot-pixel case ``s1A``.)
+
+rdnet's hot pixels (:mod:`rdnet.sim.effects`) fire Poisson events of one fixed polarity each
+(ON or OFF with probability 1/2); the circuit's (:mod:`rdnet.circuit.pixel`) fire periodic ON
+events only. This script flags the hot pixels of every real recording with events that
+rdnet reads (the hot-pixel pass of ``rdnet restore``: :func:`rdnet.restore.hotpixels.hot_pixels`
+with the ``restore`` section's factor and minimum rate) and reports, per recording, the ON
+fraction of the hot pixels' events against the other pixels', and per hot pixel its own ON
+fraction (how many fire both polarities: an ON fraction between 0.1 and 0.9). Recordings
+of ../shared/real that are absent are skipped with a note.
+
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/hot_pixel_polarity.py
+    # -> benchmarks/results/hot_pixel_polarity.{json,md}
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared" / "real"
+RECORDINGS = {"davis346_road": ROOT / "data" / "real" / "davis346_road" / "davis346.aedat4",
+              "dvxplorer_person": SHARED / "dvxplorer_person" / "dvxplorer.aedat4",
+              "prophesee_evk4_night": SHARED / "prophesee_evk4_night" / "night.raw",
+              "prophesee_gen3_sparklers": SHARED / "prophesee_gen3_sparklers" / "sparklers.raw"}
+
+
+def polarity(path: Path, factor: float, min_hz: float) -> dict:
+    from rdnet.events.io.stream import open_events
+    from rdnet.restore.hotpixels import hot_pixels, pixel_counts
+    with open_events(path) as src:
+        w, h = src.width, src.height
+        counts, dur = pixel_counts(src.chunks(1_000_000), w, h)
+    hot = hot_pixels(counts, dur, factor, min_hz).ravel()
+    on, n = np.zeros(w * h), np.zeros(w * h)
+    with open_events(path) as src:
+        for c in src.chunks(1_000_000):
+            a = c.array
+            i = a["y"].astype(np.int64) * w + a["x"]
+            n += np.bincount(i, minlength=w * h)
+            on += np.bincount(i, weights=(a["p"] > 0).astype(np.float64), minlength=w * h)
+    per_pixel = on[hot] / np.maximum(n[hot], 1)
+    return {"path": str(path.relative_to(ROOT.parent)), "hot_pixels": int(hot.sum()),
+            "hot_events": int(n[hot].sum()),
+            "on_fraction_hot": float(on[hot].sum() / n[hot].sum()) if n[hot].sum() else None,
+            "on_fraction_others": float(on[~hot].sum() / n[~hot].sum()),
+            "per_hot_pixel_on_fraction": sorted(round(float(x), 3) for x in per_pixel),
+            "hot_pixels_firing_both": int(((per_pixel > 0.1) & (per_pixel < 0.9)).sum())}
+
+
+def main() -> int:
+    from rdnet.config import load_params, section
+    cfg = section(load_params(ROOT / "params.yaml"), "restore")
+    rows, notes = {}, []
+    for name, path in RECORDINGS.items():
+        if not path.exists():
+            notes.append(f"{name}: {path} absent, skipped")
+            continue
+        rows[name] = polarity(path, cfg.hot_pixel_factor, cfg.hot_pixel_min_hz)
+        print(name, json.dumps({k: v for k, v in rows[name].items() if k != "per_hot_pixel_on_fraction"}), flush=True)
+    out = ROOT / "benchmarks" / "results" / "hot_pixel_polarity"
+    out.with_suffix(".json").write_text(json.dumps({
+        "benchmark": "hot_pixel_polarity", "hot_pixel_factor": cfg.hot_pixel_factor,
+        "hot_pixel_min_hz": cfg.hot_pixel_min_hz, "recordings": rows, "notes": notes}, indent=2) + "\n")
+    lines = ["| recording | hot pixels | their events | ON fraction, hot pixels | ON fraction, other pixels "
+             "| hot pixels firing both polarities (ON fraction 0.1-0.9) | median per-pixel ON fraction |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
+    for name, r in rows.items():
+        fr = r["per_hot_pixel_on_fraction"]
+        hot_on = "-" if r["on_fraction_hot"] is None else f"{r['on_fraction_hot']:.3f}"
+        med = f"{np.median(fr):.2f}" if fr else "-"
+        lines.append(f"| {name} | {r['hot_pixels']} | {r['hot_events']} | {hot_on} | "
+                     f"{r['on_fraction_others']:.3f} | {r['hot_pixels_firing_both']} of {r['hot_pixels']} | {med} |")
+    lines += [""] + [f"- {n}" for n in notes]
+    out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
