@@ -121,13 +121,18 @@ def measure(spec, method: str, seed: int = 0) -> dict:
             "rms_log_change_per_400fps_frame": rms(np.diff(fine_log, axis=0))}
 
 
-def measure_real(method: str) -> dict:
-    """Held-out middle frames of the DAVIS346 recording (module docstring)."""
+def davis346_frames() -> tuple[np.ndarray, np.ndarray]:
+    """The DAVIS346 road recording's APS frames: (grey float32 (N, H, W), t_us)."""
     from rdnet.events.io.stream import open_events
-    from rdnet.sim.interpolate import PairInterpolator, flow_weight
     with open_events(ROOT / "data" / "real" / "davis346_road" / "davis346.aedat4") as src:
         frames = src.frames()
-        grey, t = frames.grey().astype(np.float32), frames.t_us
+        return frames.grey().astype(np.float32), frames.t_us
+
+
+def measure_real(method: str) -> dict:
+    """Held-out middle frames of the DAVIS346 recording (module docstring)."""
+    from rdnet.sim.interpolate import PairInterpolator, flow_weight
+    grey, t = davis346_frames()
     cfg = _config(method)
     n, half = len(grey), len(grey) // 2
     weights = [None, None]
@@ -149,7 +154,6 @@ def weight_figure(scenes: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     from rdnet.calib.scene import render
-    from rdnet.events.io.stream import open_events
     from rdnet.sim.interpolate import flow_weight
     cfg = _config("selected")
     panels = []
@@ -157,9 +161,7 @@ def weight_figure(scenes: dict, path: Path) -> None:
         coarse, _ = render(scenes[name], np.random.default_rng(0))
         panels.append((f"scene {name}", coarse.images[len(coarse.images) // 2],
                        flow_weight(coarse.images, coarse.t_us, cfg, EPS)))
-    with open_events(ROOT / "data" / "real" / "davis346_road" / "davis346.aedat4") as src:
-        frames = src.frames()
-        grey, t = frames.grey().astype(np.float32), frames.t_us
+    grey, t = davis346_frames()
     panels.append(("DAVIS346 road", grey[len(grey) // 2], flow_weight(grey, t, cfg, EPS)))
     fig, axes = plt.subplots(2, len(panels), figsize=(3.4 * len(panels), 5.6), squeeze=False)
     for j, (title, frame, w) in enumerate(panels):

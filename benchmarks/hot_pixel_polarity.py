@@ -33,17 +33,13 @@ RECORDINGS = {"davis346_road": ROOT / "data" / "real" / "davis346_road" / "davis
 def polarity(path: Path, factor: float, min_hz: float) -> dict:
     from rdnet.events.io.stream import open_events
     from rdnet.restore.hotpixels import hot_pixels, pixel_counts
-    with open_events(path) as src:
+    with open_events(path) as src:           # the files are small: read once, counted twice
         w, h = src.width, src.height
-        counts, dur = pixel_counts(src.chunks(1_000_000), w, h)
+        chunks = list(src.chunks(1_000_000))
+    counts, dur = pixel_counts(chunks, w, h)
+    on_counts, _ = pixel_counts((c.select(c.p > 0) for c in chunks), w, h)
     hot = hot_pixels(counts, dur, factor, min_hz).ravel()
-    on, n = np.zeros(w * h), np.zeros(w * h)
-    with open_events(path) as src:
-        for c in src.chunks(1_000_000):
-            a = c.array
-            i = a["y"].astype(np.int64) * w + a["x"]
-            n += np.bincount(i, minlength=w * h)
-            on += np.bincount(i, weights=(a["p"] > 0).astype(np.float64), minlength=w * h)
+    n, on = counts.ravel().astype(np.float64), on_counts.ravel().astype(np.float64)
     per_pixel = on[hot] / np.maximum(n[hot], 1)
     return {"path": str(path.relative_to(ROOT.parent)), "hot_pixels": int(hot.sum()),
             "hot_events": int(n[hot].sum()),

@@ -110,8 +110,8 @@ class CalibrateConfig:
             positive(f"calibrate.{key}", getattr(self, key))
         object.__setattr__(self, "candidates", tuple(self.candidates))
         object.__setattr__(self, "interpolation", tuple(self.interpolation))
+        from rdnet.sim.interpolate import METHODS
         for m in self.interpolation:
-            from rdnet.sim.interpolate import METHODS
             if m not in METHODS:
                 raise ConfigError("calibrate.interpolation", f"unknown method {m!r}; known: {', '.join(METHODS)}")
         if len(set(self.interpolation)) != len(self.interpolation):

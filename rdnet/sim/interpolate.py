@@ -456,9 +456,12 @@ class PairInterpolator:
     adaptive loop asks for another count)."""
 
     def __init__(self, f0: np.ndarray, f1: np.ndarray, cfg: InterpolateConfig,
-                 flow_weight: np.ndarray | None = None):
+                 flow_weight: np.ndarray | None = None, flows: "PairFlowCache | None" = None,
+                 index: int = 0):
         """``flow_weight`` (H, W) in [0, 1]: method 'selected' only, the weight of the flow
-        frame against the linear one at each pixel (:func:`flow_weight`; None: 1 everywhere)."""
+        frame against the linear one at each pixel (:func:`flow_weight`; None: 1 everywhere).
+        ``flows``: the flows of pair ``index`` come from (or go to) this cache, shared with
+        other interpolations of the same frames (:class:`PairFlowCache`)."""
         self.f0 = _as_float(f0, "f0")
         self.f1 = _as_float(f1, "f1")
         if self.f0.shape != self.f1.shape:
@@ -474,6 +477,8 @@ class PairInterpolator:
             w = w[..., None] if self.color else w
         # the arrays ``frame`` blends (swapped for their sampled views by ``on_grid``)
         self._blend = (self.f0, self.f1, w)
+        if flows is not None:
+            flows.share(index, self)
 
     @property
     def uses_flow(self) -> bool:
@@ -531,14 +536,21 @@ class PairInterpolator:
 
     def frame(self, t: float) -> np.ndarray:
         """The frame at fraction ``t`` in (0, 1) of the interval."""
-        b0, b1, weight = self._blend
+        weight = self._blend[2]
         t = np.float32(t)
         if not self.uses_flow:
-            return (1 - t) * b0 + t * b1
+            return self.crossfade(t)
         out = self._warped(t)
         if weight is None:
             return out
-        return (weight * out + (1 - weight) * ((1 - t) * b0 + t * b1)).astype(np.float32)
+        return (weight * out + (1 - weight) * self.crossfade(t)).astype(np.float32)
+
+    def crossfade(self, t: float) -> np.ndarray:
+        """The linear blend ``(1 - t) f0 + t f1`` (method 'linear'; the cross-fade part of
+        'selected'), on the grid of :meth:`on_grid` when inside it."""
+        b0, b1 = self._blend[:2]
+        t = np.float32(t)
+        return (1 - t) * b0 + t * b1
 
     def _warped(self, t: np.float32) -> np.ndarray:
         """The flow frame at ``t`` (module docstring)."""
@@ -581,8 +593,7 @@ class PairFlowCache:
 
     def __init__(self, users: int):
         self._lock = threading.Lock()
-        self._pending: dict = {}
-        self._left: dict = {}
+        self._pending: dict = {}             # key -> [Future of the flows, users still to come]
         self.users = int(users)
 
     def share(self, index: int, pi: "PairInterpolator") -> None:
@@ -592,14 +603,14 @@ class PairFlowCache:
         c = pi.cfg
         key = (int(index), pi.f0.shape, c.flow, c.dis_preset, c.dis_finest_scale, c.occlusion)
         with self._lock:
-            fut = self._pending.get(key)
-            owner = fut is None
+            owner = key not in self._pending
             if owner:
-                fut = self._pending[key] = Future()
-                self._left[key] = self.users
-            self._left[key] -= 1
-            if self._left[key] <= 0:            # the last user: nothing keeps it after this
-                del self._pending[key], self._left[key]
+                self._pending[key] = [Future(), self.users]
+            entry = self._pending[key]
+            fut = entry[0]
+            entry[1] -= 1
+            if entry[1] <= 0:                   # the last user: nothing keeps it after this
+                del self._pending[key]
         if owner:
             try:
                 fut.set_result(pi._prepare())
@@ -634,8 +645,7 @@ def flow_weight(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig, lo
         s = (t[i] - t[i - 1]) / (t[i + 1] - t[i - 1])
         truth = np.log(luminance(_as_float(images[i])) + eps)
         err_flow += np.square(np.log(luminance(pi.frame(s)) + eps) - truth)
-        blend = (1 - np.float32(s)) * pi.f0 + np.float32(s) * pi.f1
-        err_linear += np.square(np.log(luminance(blend) + eps) - truth)
+        err_linear += np.square(np.log(luminance(pi.crossfade(s)) + eps) - truth)
     sigma = float(cfg.select_sigma_px)
     pooled_flow = cv2.GaussianBlur(err_flow.astype(np.float32), (0, 0), sigma)
     pooled_linear = cv2.GaussianBlur(err_linear.astype(np.float32), (0, 0), sigma)
@@ -781,10 +791,7 @@ def upsample(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig = Inte
         if cfg.method == "none" or cap <= 0:
             mid, steps, crit = np.empty((0,) + f0.shape, np.float32), None, None
         else:
-            pi = PairInterpolator(f0, f1, cfg, weight)
-            if flows is not None:
-                flows.share(i, pi)
-            mid, steps, crit = _adaptive(pi, cap, eps, cfg, sts)
+            mid, steps, crit = _adaptive(PairInterpolator(f0, f1, cfg, weight, flows, i), cap, eps, cfg, sts)
         k = mid.shape[0]
         t_mid = t_us[i] + np.rint(np.arange(1, k + 1) * (dt / (k + 1))).astype(np.int64)
         chain = np.concatenate([f0[None], mid, f1[None]])
