@@ -17,7 +17,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -132,7 +132,10 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
     try:
         interps = interpolation_configs(cfg, interpolate)
         trials = [None] * len(interps)
-        for i, ctx in contexts_as_built(rec, cfg, sensor.log_eps, interps, source):
+
+        def trial(i: int, ctx: CalibContext) -> tuple:
+            # in the context's own thread: the kernels release the GIL, so the candidates'
+            # refits and screens share the cores
             icfg = interps[i]
             obj, fine, search = _objectives(ctx, sensor, degrade, seeds, simulate_fn)
             values, beta = fit_basic(search, fine)
@@ -144,8 +147,11 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
             log.info("frame interpolation %s: %d simulated frames, basic refit %s: fit %.3f held-out %.3f; "
                      "best screened effect %s: fit -> %.3f", method, len(ctx.sim_t), values, ev.fit_mean,
                      ev.held_mean, best, reach)
-            trials[i] = (method, ctx, obj, fine, search, values, beta, ev, reach, best, gains)
-            tick(f"basic refit ({method})")
+            return (method, ctx, obj, fine, search, values, beta, ev, reach, best, gains)
+
+        for i, tr in contexts_as_built(rec, cfg, sensor.log_eps, interps, source, then=trial):
+            trials[i] = tr
+            tick(f"basic refit ({tr[0]})")
         chosen = min(trials, key=lambda tr: tr[8])
         method, ctx, obj, fine, search = chosen[:5]
         log.info("calibrating %s: %d sampled pixels (stride %d; search: %d, stride %d), %d real events, "
@@ -264,21 +270,28 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
 
 
 def contexts_as_built(rec: Recording, cfg: CalibrateConfig, log_eps: float, interps: list,
-                      source: str) -> Iterator[tuple[int, CalibContext]]:
+                      source: str, then: Callable[[int, CalibContext], object] | None = None) -> Iterator[tuple]:
     """:func:`build_context` for every interpolation config of ``interps``, each in its
-    own thread, yielding ``(index, context)`` as they are ready: the caller fits on the
-    cheap ones (linear blending) while the optical flow of the others is still being
-    computed (OpenCV and numpy release the GIL, and so do the simulator's kernels), on
-    the second core when there is one. A context does not depend on when it was built."""
+    own thread, yielding ``(index, context)`` as they are ready, or ``(index, then(index,
+    context))`` when ``then`` is given (run in the same thread, with ``cfg.threads`` numba
+    threads: the setting is per thread). OpenCV, numpy and the simulator's kernels release
+    the GIL, so the candidates share the cores; the flow of one is computed while another
+    is already fitting on linear blending. A context does not depend on when it was built."""
+    def job(i: int, flows) -> object:
+        ctx = build_context(rec, cfg, log_eps, interpolate=interps[i], source=source, flows=flows)
+        if then is None:
+            return ctx
+        with numba_threads(cfg.threads):
+            return then(i, ctx)
+
     if len(interps) == 1:
-        yield 0, build_context(rec, cfg, log_eps, interpolate=interps[0], source=source)
+        yield 0, job(0, None)
         return
     from rdnet.sim.interpolate import FLOW_METHODS, PairFlowCache
     users = sum(icfg.method in FLOW_METHODS for icfg in interps)
     flows = PairFlowCache(users) if users > 1 else None   # flow and selected warp with the same pair flows
     with ThreadPoolExecutor(max_workers=len(interps), thread_name_prefix="rdnet-calib-context") as pool:
-        futures = {pool.submit(build_context, rec, cfg, log_eps, interpolate=icfg, source=source, flows=flows): i
-                   for i, icfg in enumerate(interps)}
+        futures = {pool.submit(job, i, flows): i for i in range(len(interps))}
         for fut in as_completed(futures):
             yield futures[fut], fut.result()
 

@@ -137,6 +137,29 @@ def test_contexts_built_side_by_side_equal_sequential_builds(hot_recording):
         assert np.array_equal(got[i].sim_images, ref.sim_images) and np.array_equal(got[i].sim_t, ref.sim_t)
 
 
+
+def test_contexts_then_runs_in_the_worker_with_the_configured_numba_threads(hot_recording):
+    """``then`` runs in each context's own thread (where the candidates' refits run side by
+    side), with ``calibrate.threads`` numba threads there (the setting is per thread), and
+    its result is yielded in place of the context."""
+    import threading
+
+    import numba
+
+    from rdnet.calib.calibrate import contexts_as_built, interpolation_configs
+
+    rec, _ = hot_recording
+    cfg = dataclasses.replace(calib_cases.CFG, interpolation=("flow", "linear"), threads=1)
+    interps = interpolation_configs(cfg, calib_cases.INTERP)
+
+    def then(i, ctx):
+        return i, threading.current_thread().name, numba.get_num_threads(), len(ctx.sim_t)
+
+    got = dict(contexts_as_built(rec, cfg, calib_cases.SENSOR.log_eps, interps, "test", then=then))
+    assert sorted(got) == [0, 1]
+    for i, (j, thread, n_threads, n_frames) in got.items():
+        assert j == i and thread.startswith("rdnet-calib-context") and n_threads == 1 and n_frames > 2
+
 def test_signature_cell_known_values():
     e = {"statistic": "lag", "signature": {"heldout_before": 1.23456, "heldout_after": 0.2, "z": 8.04,
                                            "vetoed": False}}
