@@ -8,8 +8,11 @@ events only. This script flags the hot pixels of every real recording with event
 rdnet reads (the hot-pixel pass of ``rdnet restore``: :func:`rdnet.restore.hotpixels.hot_pixels`
 with the ``restore`` section's factor and minimum rate) and reports, per recording, the ON
 fraction of the hot pixels' events against the other pixels', and per hot pixel its own ON
-fraction (how many fire both polarities: an ON fraction between 0.1 and 0.9). Recordings
-of ../shared/real that are absent are skipped with a note.
+fraction (how many fire both polarities: an ON fraction between 0.1 and 0.9), and the two
+polarity keys of rdnet's hot-pixel model fitted to them (``degrade.hot_pixel_on_fraction`` m,
+``degrade.hot_pixel_polarity_concentration`` k: pixel i fires ON with probability
+q_i ~ Beta(k m, k (1 - m)); :func:`rdnet.calib.stats.hot_pixel_polarity`, method of moments,
+with 2+ hot pixels). Recordings of ../shared/real that are absent are skipped with a note.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/hot_pixel_polarity.py
     # -> benchmarks/results/hot_pixel_polarity.{json,md}
@@ -31,6 +34,7 @@ RECORDINGS = {"davis346_road": ROOT / "data" / "real" / "davis346_road" / "davis
 
 
 def polarity(path: Path, factor: float, min_hz: float) -> dict:
+    from rdnet.calib.stats import hot_pixel_polarity
     from rdnet.events.io.stream import open_events
     from rdnet.restore.hotpixels import hot_pixels, pixel_counts
     with open_events(path) as src:           # the files are small: read once, counted twice
@@ -41,12 +45,15 @@ def polarity(path: Path, factor: float, min_hz: float) -> dict:
     hot = hot_pixels(counts, dur, factor, min_hz).ravel()
     n, on = counts.ravel().astype(np.float64), on_counts.ravel().astype(np.float64)
     per_pixel = on[hot] / np.maximum(n[hot], 1)
+    fit = hot_pixel_polarity(on[hot], n[hot]) if int((n[hot] >= 2).sum()) >= 2 else (None, None)
     return {"path": str(path.relative_to(ROOT.parent)), "hot_pixels": int(hot.sum()),
             "hot_events": int(n[hot].sum()),
             "on_fraction_hot": float(on[hot].sum() / n[hot].sum()) if n[hot].sum() else None,
             "on_fraction_others": float(on[~hot].sum() / n[~hot].sum()),
             "per_hot_pixel_on_fraction": sorted(round(float(x), 3) for x in per_pixel),
-            "hot_pixels_firing_both": int(((per_pixel > 0.1) & (per_pixel < 0.9)).sum())}
+            "hot_pixels_firing_both": int(((per_pixel > 0.1) & (per_pixel < 0.9)).sum()),
+            "model_fit": {"hot_pixel_on_fraction": fit[0],     # k inf (all pixels alike) as the string "inf"
+                          "hot_pixel_polarity_concentration": fit[1] if fit[1] is None or np.isfinite(fit[1]) else "inf"}}
 
 
 def main() -> int:
@@ -64,14 +71,17 @@ def main() -> int:
         "benchmark": "hot_pixel_polarity", "hot_pixel_factor": cfg.hot_pixel_factor,
         "hot_pixel_min_hz": cfg.hot_pixel_min_hz, "recordings": rows, "notes": notes}, indent=2) + "\n")
     lines = ["| recording | hot pixels | their events | ON fraction, hot pixels | ON fraction, other pixels "
-             "| hot pixels firing both polarities (ON fraction 0.1-0.9) | median per-pixel ON fraction |",
-             "|---|---:|---:|---:|---:|---:|---:|"]
+             "| hot pixels firing both polarities (ON fraction 0.1-0.9) | median per-pixel ON fraction "
+             "| fitted on fraction m | fitted concentration k |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, r in rows.items():
         fr = r["per_hot_pixel_on_fraction"]
         hot_on = "-" if r["on_fraction_hot"] is None else f"{r['on_fraction_hot']:.3f}"
         med = f"{np.median(fr):.2f}" if fr else "-"
+        m, k = r["model_fit"]["hot_pixel_on_fraction"], r["model_fit"]["hot_pixel_polarity_concentration"]
+        fit = "| - | - |" if m is None else f"| {m:.2f} | {k if isinstance(k, str) else f'{k:.2f}'} |"
         lines.append(f"| {name} | {r['hot_pixels']} | {r['hot_events']} | {hot_on} | "
-                     f"{r['on_fraction_others']:.3f} | {r['hot_pixels_firing_both']} of {r['hot_pixels']} | {med} |")
+                     f"{r['on_fraction_others']:.3f} | {r['hot_pixels_firing_both']} of {r['hot_pixels']} | {med} {fit}")
     lines += [""] + [f"- {n}" for n in notes]
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     return 0

@@ -191,7 +191,8 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
     effects = []
     for eff in absent_effects(degrade):
         c = fit.candidates.get(eff.name)
-        params = {k: float(c.values.get(k, 0.0)) for k in eff.keys} if c else {}
+        params = {p.key: float(c.values.get(p.key, getattr(degrade, p.key) if p in eff.shape else 0.0))
+                  for p in eff.fitted} if c else {}
         effects.append({
             "name": eff.name,
             "missing": eff.name in selected,

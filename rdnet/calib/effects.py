@@ -25,17 +25,27 @@ class Param:
 @dataclass(frozen=True)
 class Effect:
     """A named sensor effect: its parameters, the value that turns each off, the
-    statistic that reveals it and a one-line description of the physics."""
+    statistic that reveals it and a one-line description of the physics. ``shape``:
+    parameters that come with the effect but do not switch it on or off (the hot pixels' ON
+    share): read off the recording when the effect is fitted
+    (:func:`rdnet.calib.fit.shape_estimate`), not searched; [lo, hi] is their clip range."""
 
     name: str
     params: tuple[Param, ...]
     statistic: str
     physics: str
     changes_count: bool = False     # removes or adds signal events: thresholds can hide it
+    shape: tuple[Param, ...] = ()
 
     @property
     def keys(self) -> tuple[str, ...]:
+        """The keys that switch the effect on (all off: absent)."""
         return tuple(p.key for p in self.params)
+
+    @property
+    def fitted(self) -> tuple[Param, ...]:
+        """Every parameter fitted with the effect: its keys, then its shape."""
+        return self.params + self.shape
 
     def present(self, degrade: DegradeConfig) -> bool:
         return any(getattr(degrade, k) != OFF.get(k, 0.0) for k in self.keys)
@@ -61,7 +71,8 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
     Effect("leak_events", (Param("leak_hz", 1e-4, 30.0),), "static_on_fraction",
            "ON-only leak events from junction leakage"),
     Effect("hot_pixels", (Param("hot_pixel_fraction", 0.0005, 0.05), Param("hot_pixel_hz", 3.0, 3000.0)),
-           "pixel_tail", "a few pixels fire continuously"),
+           "pixel_tail", "a few pixels fire continuously",
+           shape=(Param("hot_pixel_on_fraction", 0.0, 1.0),)),
     Effect("timestamp_jitter", (Param("jitter_us", 20.0, 20000.0),), "rate_time",
            "random timestamp noise"),
     Effect("latency", (Param("latency_us", 50.0, 50000.0),), "lag",

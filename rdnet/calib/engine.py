@@ -37,7 +37,8 @@ from rdnet.sim.sensor import Sensor, apply_timing, sort_events
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
 #: degrade keys that act on the events after the pixel circuit (composed by the engine)
-ADDITIVE_KEYS = ("hot_pixel_fraction", "hot_pixel_hz", "jitter_us", "latency_us")
+ADDITIVE_KEYS = ("hot_pixel_fraction", "hot_pixel_hz", "hot_pixel_on_fraction", "hot_pixel_polarity_concentration",
+                 "jitter_us", "latency_us")
 #: stream ids of the per-component random generators (np.random.default_rng([seed, id]))
 #: (1 was the additive shot noise's until shot-noise events reset the pixel, 2026-11)
 _KERNEL, _HOT, _TIMING, _REFERENCE = 0, 2, 3, 4
@@ -229,9 +230,9 @@ class Engine:
         parts = [arr]
         if d.hot_pixel_fraction > 0 and d.hot_pixel_hz > 0:
             rng = np.random.default_rng([seed, _HOT])
-            idx, pol = effects.hot_pixels(h, w, d, rng)
+            idx, on = effects.hot_pixels(h, w, d, rng)
             if idx.size:
-                parts.append(effects.hot_pixel_events(idx, pol, d.hot_pixel_hz, t0, t1, w, rng))
+                parts.append(effects.hot_pixel_events(idx, on, d.hot_pixel_hz, t0, t1, w, rng))
         timing = d.jitter_us > 0 or d.latency_us > 0
         if len(parts) == 1 and not timing:
             return arr

@@ -359,22 +359,55 @@ def _guess(obj: Objective, values: dict, effect: Effect, noise_reset: bool = Tru
         v[p.key] = float(np.clip(r, p.lo, p.hi))
         return v
     if effect.name == "hot_pixels":
+        at = _hot_pixel_mask(obj, values)
+        if at is None:
+            return None
         sim = obj.stats_all(values)["net_rate"].ravel()
         real = obj.real_all["net_rate"].ravel()
-        top = np.sort(sim)[-max(1, sim.size // 1000):]
-        thresh = 2.0 * float(top.mean()) + 1.0
-        hot = real[real > thresh]
-        for _ in range(3):          # drop busy scene pixels: hot pixels share one rate
-            if hot.size == 0:
-                return None
-            hot = real[real > max(thresh, 0.5 * float(np.median(hot)))]
-        if hot.size == 0:
-            return None
+        hot = real[at]
         v = dict(values)
         v["hot_pixel_fraction"] = float(np.clip(hot.size / real.size, 0.0005, 0.05))
         v["hot_pixel_hz"] = float(np.clip(np.median(hot) - float(np.mean(sim)), 3.0, 3000.0))
+        v.update(shape_estimate(obj, values, effect))
         return v
     return None
+
+
+def _hot_pixel_mask(obj: Objective, values: dict) -> np.ndarray | None:
+    """The sampled pixels whose net ON - OFF rate in the recording exceeds any simulated
+    one (hot pixels; busy scene pixels dropped: hot pixels share one rate), or None."""
+    sim = obj.stats_all(values)["net_rate"].ravel()
+    real = obj.real_all["net_rate"].ravel()
+    top = np.sort(sim)[-max(1, sim.size // 1000):]
+    thresh = 2.0 * float(top.mean()) + 1.0
+    cut = thresh
+    hot = real[real > cut]
+    for _ in range(3):
+        if hot.size == 0:
+            return None
+        cut = max(thresh, 0.5 * float(np.median(hot)))
+        hot = real[real > cut]
+    return real > cut if hot.size else None
+
+
+def shape_estimate(obj: Objective, values: dict, effect: Effect) -> dict:
+    """The shape parameters of ``effect`` read off the recording on top of ``values`` (the
+    config without the effect); {} when the data do not show them. Shape parameters are
+    estimated, not searched: the whole-sensor statistics barely move with them, so a search
+    would fit seed noise. Hot pixels: their ON share, the ON part of what the hot pixels
+    (:func:`_hot_pixel_mask`) fire beyond the simulation at the same pixels."""
+    if effect.name != "hot_pixels":
+        return {}
+    at = _hot_pixel_mask(obj, values)
+    if at is None:
+        return {}
+    sim, real = obj.stats_all(values), obj.real_all
+    extra = float(real["pixel_rate"].ravel()[at].sum() - sim["pixel_rate"].ravel()[at].sum())
+    extra_on = float(real["pixel_on_rate"].ravel()[at].sum() - sim["pixel_on_rate"].ravel()[at].sum())
+    if extra <= 0:
+        return {}
+    q = effect.shape[0]
+    return {q.key: float(np.clip(extra_on / extra, q.lo, q.hi))}
 
 
 # --- effect fits -----------------------------------------------------------------------------
@@ -544,7 +577,7 @@ def rescreen(obj: Objective, values: dict, effect: Effect, previous: dict, beta:
     """Step 2 in a later round: the effect at its previous fit, on top of ``values``."""
     f = Compensated(obj, beta) if effect.changes_count else obj
     v = dict(values)
-    v.update({k: previous[k] for k in effect.keys if k in previous})
+    v.update({p.key: previous[p.key] for p in effect.fitted if p.key in previous})
     return [f(v)]
 
 
@@ -561,6 +594,7 @@ def fit_effect(obj: Objective, values: dict, effect: Effect, screened: list[Eval
     f = Compensated(obj, beta) if effect.changes_count else obj
     i = int(np.argmin([e.fit_mean for e in screened]))
     v = dict(screened[i].values)
+    v.update(shape_estimate(obj, values, effect))   # else the guess's, or the declared value
     if grid is not None:
         p = effect.params[0]
         i = int(keep[i])
@@ -806,7 +840,7 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
                 c.confidence = min(c.confidence, SCREENED_CONFIDENCE)
             log.info("round %d %-19s gain %.4f (z %.1f, rel %.3f)%s %s", rnd, eff.name, c.gain, c.z, c.relative,
                      "" if c.fitted else " [screened out]",
-                     _fmt({p.key: v.get(p.key, 0.0) for p in eff.params}))
+                     _fmt({p.key: v.get(p.key, 0.0) for p in eff.fitted}))
             round_c.append(c)
             candidates[eff.name] = c
         # fitted candidates first (scored at the final level), then the screened-out ones

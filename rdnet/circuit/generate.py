@@ -95,8 +95,9 @@ class CircuitParams:
 #: ``shot_noise_hz``  both: the dark rate; rdnet's falls linearly to 0.25x at I = 1, this
 #:     one as 1 / (1 + I / 0.1) (0.09x at I = 1); in both, noise events reset the pixel.
 #: ``leak_hz``  same drift model in both (ON events of a static pixel at that mean rate).
-#: ``hot_pixel_*``  rdnet: Poisson events of a fixed random polarity; here: periodic ON
-#:     events from a large leak.
+#: ``hot_pixel_*``  rdnet: Poisson events, ON with a per-pixel probability (default: one
+#:     random polarity per pixel; ``hot_pixel_on_fraction``, ``hot_pixel_polarity_concentration``);
+#:     here: periodic ON events from a large leak (rdnet's ``hot_pixel_on_fraction`` 1).
 #: ``latency_us``/``jitter_us``  same meaning (rdnet truncates the Gaussian at 4 std).
 #: ``threshold_sigma``  same meaning.
 DEGRADE_EQUIVALENT: tuple[str, ...] = ("threshold_sigma", "refractory_us", "shot_noise_hz", "leak_hz",

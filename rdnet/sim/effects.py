@@ -58,8 +58,12 @@ Effects and the sources they follow:
   pixels = ``leak_hz``), and the initial reference is lowered by ``u theta_on``,
   ``u ~ U(0, 1)``, so the leak phases are random (v2e).
 * ``hot_pixel_fraction``/``hot_pixel_hz``: ``round(fraction H W)`` pixels, chosen once per
-  sequence, emit Poisson events at ``hot_pixel_hz`` regardless of the scene; each hot pixel
-  has a fixed polarity (ON or OFF with probability 1/2).
+  sequence, emit Poisson events at ``hot_pixel_hz`` regardless of the scene. Polarity
+  (``hot_pixel_on_fraction`` m, ``hot_pixel_polarity_concentration`` k): hot pixel i fires ON
+  with probability ``q_i ~ Beta(k m, k (1 - m))``; k = 0 (default) is the limit where each
+  hot pixel has one fixed polarity, ON with probability m (default 1/2). Real hot pixels
+  mostly fire both polarities, leaning ON (DVXplorer: 29 of 34, m 0.66, k 2.9; README
+  "Hot-pixel polarity").
 * ``jitter_us`` s and ``latency_us`` d (v2e Sec. 3.4 timestamp jitter; DVS-Voltmeter):
   ``t' = t + round(d + s z)``, ``z ~ N(0, 1)`` truncated to [-4, 4] (clipped: the mass
   beyond +-4 sits at +-4), ``round(v) = floor(v + 0.5)``, events re-sorted; times are
@@ -133,13 +137,18 @@ def leak_phase(height: int, width: int, degrade: DegradeConfig,
 
 def hot_pixels(height: int, width: int, degrade: DegradeConfig,
                rng: np.random.Generator | None) -> tuple[np.ndarray, np.ndarray]:
-    """(flat pixel indices int64 sorted, polarity uint8) of the hot pixels."""
+    """(flat pixel indices int64 sorted, ON probability float64 per pixel) of the hot
+    pixels: with ``hot_pixel_polarity_concentration`` k = 0 each fires one polarity (1.0 or
+    0.0, ON with probability ``hot_pixel_on_fraction`` m), with k > 0 pixel i fires ON with
+    probability q_i ~ Beta(k m, k (1 - m)) (mean m; the ON/OFF mix of real hot pixels)."""
     n = int(round(degrade.hot_pixel_fraction * height * width))
     if n == 0 or degrade.hot_pixel_hz <= 0:
-        return np.empty(0, np.int64), np.empty(0, np.uint8)
+        return np.empty(0, np.int64), np.empty(0, np.float64)
     idx = np.sort(rng.choice(height * width, size=n, replace=False)).astype(np.int64)
-    pol = (rng.random(n) < 0.5).astype(np.uint8)
-    return idx, pol
+    m, k = degrade.hot_pixel_on_fraction, degrade.hot_pixel_polarity_concentration
+    if k > 0 and 0.0 < m < 1.0:
+        return idx, rng.beta(k * m, k * (1.0 - m), n)
+    return idx, (rng.random(n) < m).astype(np.float64)
 
 
 # --- in-kernel coefficients ------------------------------------------------------------
@@ -159,18 +168,23 @@ def shot_rate_coefs(degrade: DegradeConfig) -> tuple[float, float]:
 
 # --- vectorized per-chunk effects ------------------------------------------------------
 
-def hot_pixel_events(pixels: np.ndarray, polarity: np.ndarray, rate_hz: float, t0: int, t1: int,
+def hot_pixel_events(pixels: np.ndarray, on_prob: np.ndarray, rate_hz: float, t0: int, t1: int,
                      width: int, rng: np.random.Generator) -> np.ndarray:
-    """The hot pixels' events of [t0, t1): hot pixel i (flat index ``pixels[i]``, fixed
-    ``polarity[i]``) gets ``Poisson(rate_hz (t1 - t0))`` events at uniform times. Returns an
-    EVENT_DTYPE array grouped by pixel (not sorted)."""
+    """The hot pixels' events of [t0, t1): hot pixel i (flat index ``pixels[i]``) gets
+    ``Poisson(rate_hz (t1 - t0))`` events at uniform times, each ON with probability
+    ``on_prob[i]`` (:func:`hot_pixels`; no draw where it is 0 or 1). Returns an EVENT_DTYPE
+    array grouped by pixel (not sorted)."""
     counts = rng.poisson(np.full(pixels.size, rate_hz * (int(t1) - int(t0)) * 1e-6))
     n = int(counts.sum())
     idx = np.repeat(pixels, counts)
     span = max(int(t1) - int(t0), 1)
     out = np.empty(n, EVENT_DTYPE)
     out["t"] = int(t0) + np.floor(rng.random(n) * span).astype(np.int64)
-    out["p"] = np.repeat(polarity, counts)
+    q = np.repeat(np.asarray(on_prob, np.float64), counts)
+    if np.all((q == 0.0) | (q == 1.0)):
+        out["p"] = q.astype(np.uint8)
+    else:
+        out["p"] = (rng.random(n) < q).astype(np.uint8)
     y, x = np.divmod(idx, width)
     out["x"], out["y"] = x, y
     return out

@@ -631,7 +631,7 @@ class Sensor:
         self.leak_rate_hz = rates
         self.drift = rates * self.thr_on * 1e-6            # log units per microsecond
         self._phase = effects.leak_phase(H, W, degrade, rng)
-        self.hot_idx, self.hot_pol = effects.hot_pixels(H, W, degrade, rng)
+        self.hot_idx, self.hot_on = effects.hot_pixels(H, W, degrade, rng)
         self._lp_coef = effects.lowpass_coef(degrade)
         self._shot_a, self._shot_b = effects.shot_rate_coefs(degrade)
         self._shift_lo, self._shift_hi = effects.timing_shift_bounds(degrade)
@@ -857,7 +857,7 @@ class Sensor:
         d, rng = self.degrade, self.rng
         noise = []
         if self.hot_idx.size:
-            noise.append(effects.hot_pixel_events(self.hot_idx, self.hot_pol, d.hot_pixel_hz, t0, t1, self.width, rng))
+            noise.append(effects.hot_pixel_events(self.hot_idx, self.hot_on, d.hot_pixel_hz, t0, t1, self.width, rng))
         if not noise and not self._timing:
             arr = np.empty(n_kernel, EVENT_DTYPE)
             if arr.size:

@@ -65,6 +65,14 @@ class DegradeConfig:
                           (v2e ``SHOT_NOISE_INTEN_FACTOR`` = 0.25); linear in between.
     ``leak_spread_decades``  std of log10 of the per-pixel leak rate (v2e
                           ``noise_rate_cov_decades`` = 0.1).
+    ``hot_pixel_on_fraction``  mean share of ON events among the hot pixels' events (0.5:
+                          balanced; real hot pixels lean ON: 0.69 on the DVXplorer take of
+                          ``../shared/real``, ``benchmarks/hot_pixel_polarity.py``).
+    ``hot_pixel_polarity_concentration``  how alike the hot pixels' ON shares are: hot pixel
+                          i fires ON with probability q_i ~ Beta(k m, k (1 - m)) (k this value,
+                          m ``hot_pixel_on_fraction``); 0: each hot pixel fires one polarity, ON
+                          with probability m (the limit k -> 0); large: every hot pixel fires
+                          both polarities at the share m.
     """
 
     threshold_sigma: float = 0.0      # per-pixel Gaussian threshold mismatch (fraction of threshold)
@@ -80,6 +88,8 @@ class DegradeConfig:
     latency_us: float = 0.0           # constant timestamp delay
     shot_noise_bright_factor: float = 0.25  # shot-noise rate at I=1 / rate at I=0
     leak_spread_decades: float = 0.1  # std of log10(per-pixel leak rate)
+    hot_pixel_on_fraction: float = 0.5  # mean ON share of the hot pixels' events
+    hot_pixel_polarity_concentration: float = 0.0  # Beta concentration of the per-pixel ON share (0: one polarity each)
 
     def __post_init__(self):
         for f in fields(self):
@@ -92,8 +102,9 @@ class DegradeConfig:
                 positive(f"degrade.{f.name}", v)
             if v == float("inf"):
                 raise ConfigError(f"degrade.{f.name}", "must be finite")
-        if self.hot_pixel_fraction > 1:
-            raise ConfigError("degrade.hot_pixel_fraction", f"must be <= 1, got {self.hot_pixel_fraction}")
+        for k in ("hot_pixel_fraction", "hot_pixel_on_fraction"):
+            if getattr(self, k) > 1:
+                raise ConfigError(f"degrade.{k}", f"must be <= 1, got {getattr(self, k)}")
         if self.threshold_sigma > 1:
             raise ConfigError("degrade.threshold_sigma",
                               f"must be <= 1 (a fraction of the threshold), got {self.threshold_sigma}")

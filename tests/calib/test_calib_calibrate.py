@@ -75,7 +75,7 @@ def test_report_schema_and_files(hot_cal, tmp_path):
         assert set(e) >= {"name", "missing", "parameters", "where", "evidence", "confidence"}
         assert e["name"] in EFFECTS and isinstance(e["missing"], bool)
         assert 0.0 <= e["confidence"] <= 1.0
-        assert set(e["parameters"]) <= set(EFFECTS[e["name"]].keys)
+        assert set(e["parameters"]) <= {p.key for p in EFFECTS[e["name"]].fitted}
         assert isinstance(e["where"], str) and isinstance(e["evidence"], str)
     d = r["discrepancy"]
     assert set(d) >= {"metric", "fit_before", "fit_after", "heldout_before", "heldout_after"}
@@ -185,3 +185,22 @@ def test_weak_onoff_asymmetry_found_from_the_on_off_odds():
     m = case_metrics(case, cal.report, truth)
     assert m["named"] == ["onoff_asymmetry"] and m["rank"] == 1
     assert m["param_max_rel_error"] <= 0.25, m["param_rel_error"]
+
+
+def test_on_only_hot_pixels_are_fitted_with_their_on_share_not_as_an_asymmetry():
+    """Hot pixels that fire ON events only (as the circuit generator's do, and nearly as some
+    real ones): the hot-pixel fit reads their ON share off the data (the shape parameter
+    ``hot_pixel_on_fraction``, guessed from what the excess pixels fire beyond the
+    simulation), so no ON/OFF asymmetry is needed to explain the ON excess."""
+    from rdnet.calib.proof import ProofCase, make_recording
+    case = ProofCase("hot_pixels_on_only", "hot_pixels", {"shot_noise_hz": 3.0},
+                     {"hot_pixel_fraction": 0.01, "hot_pixel_hz": 100.0, "shot_noise_hz": 2.0,
+                      "hot_pixel_on_fraction": 1.0}, compensate="shot_noise_hz")
+    rec, truth = make_recording(case, calib_cases.SPEC, SENSOR, np.random.default_rng(11), 1, INTERP)
+    cfg = dataclasses.replace(CFG, candidates=("hot_pixels", "onoff_asymmetry", "leak_events"))
+    cal = calibrate(rec, SENSOR, DegradeConfig(**case.base), cfg, seed=0, interpolate=INTERP, source="on_only")
+    named = [e["name"] for e in cal.report["effects"] if e["missing"]]
+    hot = next(e for e in cal.report["effects"] if e["name"] == "hot_pixels")
+    assert named == ["hot_pixels"], named
+    assert hot["parameters"]["hot_pixel_on_fraction"] > 0.85, hot["parameters"]
+    assert cal.report["fitted_config"]["degrade"]["hot_pixel_on_fraction"] > 0.85
