@@ -2,8 +2,8 @@
 the independent circuit generator disagree, and the calibration reports the difference as a
 second effect, ON/OFF asymmetry, in the circuit's hot-pixel case ``s1A``.)
 
-rdnet's hot pixels (:mod:`rdnet.sim.effects`) fire Poisson events of one fixed polarity each
-(ON or OFF with probability 1/2); the circuit's (:mod:`rdnet.circuit.pixel`) fire periodic ON
+rdnet's hot pixels (:mod:`rdnet.sim.effects`) fired Poisson events of one fixed polarity each
+(ON or OFF with probability 1/2; now the default of its two polarity keys); the circuit's (:mod:`rdnet.circuit.pixel`) fire periodic ON
 events only. This script flags the hot pixels of every real recording with events that
 rdnet reads (the hot-pixel pass of ``rdnet restore``: :func:`rdnet.restore.hotpixels.hot_pixels`
 with the ``restore`` section's factor and minimum rate) and reports, per recording, the ON
@@ -11,8 +11,9 @@ fraction of the hot pixels' events against the other pixels', and per hot pixel 
 fraction (how many fire both polarities: an ON fraction between 0.1 and 0.9), and the two
 polarity keys of rdnet's hot-pixel model fitted to them (``degrade.hot_pixel_on_fraction`` m,
 ``degrade.hot_pixel_polarity_concentration`` k: pixel i fires ON with probability
-q_i ~ Beta(k m, k (1 - m)); :func:`rdnet.calib.stats.hot_pixel_polarity`, method of moments,
-with 2+ hot pixels). Recordings of ../shared/real that are absent are skipped with a note.
+q_i ~ Beta(k m, k (1 - m)); :func:`rdnet.restore.hotpixels.polarity_model`, method of moments,
+with 2+ hot pixels; the same numbers ``rdnet restore`` writes to OUT.json's
+``hot_pixels.polarity``). Recordings of ../shared/real that are absent are skipped with a note.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/hot_pixel_polarity.py
     # -> benchmarks/results/hot_pixel_polarity.{json,md}
@@ -34,26 +35,21 @@ RECORDINGS = {"davis346_road": ROOT / "data" / "real" / "davis346_road" / "davis
 
 
 def polarity(path: Path, factor: float, min_hz: float) -> dict:
-    from rdnet.calib.stats import hot_pixel_polarity
     from rdnet.events.io.stream import open_events
-    from rdnet.restore.hotpixels import hot_pixels, pixel_counts
-    with open_events(path) as src:           # the files are small: read once, counted twice
-        w, h = src.width, src.height
-        chunks = list(src.chunks(1_000_000))
-    counts, dur = pixel_counts(chunks, w, h)
-    on_counts, _ = pixel_counts((c.select(c.p > 0) for c in chunks), w, h)
-    hot = hot_pixels(counts, dur, factor, min_hz).ravel()
-    n, on = counts.ravel().astype(np.float64), on_counts.ravel().astype(np.float64)
-    per_pixel = on[hot] / np.maximum(n[hot], 1)
-    fit = hot_pixel_polarity(on[hot], n[hot]) if int((n[hot] >= 2).sum()) >= 2 else (None, None)
+    from rdnet.restore.hotpixels import hot_pixels, polarity_counts, polarity_model
+    with open_events(path) as src:           # the pass of rdnet restore: all and ON counts per pixel
+        counts, on_counts, dur = polarity_counts(src.chunks(1_000_000), src.width, src.height)
+    hot = hot_pixels(counts, dur, factor, min_hz)
+    model = polarity_model(counts, on_counts, hot)
+    n, on = counts[hot].astype(np.float64), on_counts[hot].astype(np.float64)
+    rest_n, rest_on = counts[~hot].sum(), on_counts[~hot].sum()
+    per_pixel = on / np.maximum(n, 1)
     return {"path": str(path.relative_to(ROOT.parent)), "hot_pixels": int(hot.sum()),
-            "hot_events": int(n[hot].sum()),
-            "on_fraction_hot": float(on[hot].sum() / n[hot].sum()) if n[hot].sum() else None,
-            "on_fraction_others": float(on[~hot].sum() / n[~hot].sum()),
+            "hot_events": int(n.sum()), "on_fraction_hot": model["on_fraction"],
+            "on_fraction_others": float(rest_on / rest_n),
             "per_hot_pixel_on_fraction": sorted(round(float(x), 3) for x in per_pixel),
             "hot_pixels_firing_both": int(((per_pixel > 0.1) & (per_pixel < 0.9)).sum()),
-            "model_fit": {"hot_pixel_on_fraction": fit[0],     # k inf (all pixels alike) as the string "inf"
-                          "hot_pixel_polarity_concentration": fit[1] if fit[1] is None or np.isfinite(fit[1]) else "inf"}}
+            "model_fit": {k: model[k] for k in ("hot_pixel_on_fraction", "hot_pixel_polarity_concentration")}}
 
 
 def main() -> int:

@@ -30,16 +30,43 @@ from rdnet.events.core import Events
 
 def pixel_counts(chunks: Iterable[Events], width: int, height: int) -> tuple[np.ndarray, int]:
     """``(counts (height, width) int64, duration_us)`` of a stream of event chunks."""
+    counts, _, duration = polarity_counts(chunks, width, height)
+    return counts, duration
+
+
+def polarity_counts(chunks: Iterable[Events], width: int, height: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """``(counts, on_counts, duration_us)`` of a stream of event chunks: per pixel all
+    events and the ON ones, each (height, width) int64."""
     counts = np.zeros(width * height, np.int64)
+    on = np.zeros(width * height, np.int64)
     t_first = t_last = None
     for ev in chunks:
         if len(ev) == 0:
             continue
-        counts += np.bincount(ev.y.astype(np.int64) * width + ev.x, minlength=width * height)
+        flat = ev.y.astype(np.int64) * width + ev.x
+        counts += np.bincount(flat, minlength=width * height)
+        on += np.bincount(flat, weights=ev.p, minlength=width * height).astype(np.int64)
         t_first = int(ev.t[0]) if t_first is None else t_first
         t_last = int(ev.t[-1])
     duration = 0 if t_first is None else t_last - t_first
-    return counts.reshape(height, width), duration
+    return counts.reshape(height, width), on.reshape(height, width), duration
+
+
+def polarity_model(counts: np.ndarray, on_counts: np.ndarray, mask: np.ndarray) -> dict:
+    """What the flagged pixels ``mask`` tell about the simulator's hot-pixel polarity:
+    ``on_fraction`` (ON share of their events) and, with two or more flagged pixels of two
+    or more events, the ``degrade`` keys ``hot_pixel_on_fraction`` and
+    ``hot_pixel_polarity_concentration`` fitted to them
+    (:func:`rdnet.sim.effects.fit_hot_pixel_polarity`; ``"inf"`` when every pixel fires at one
+    share), else None for both."""
+    from rdnet.sim.effects import fit_hot_pixel_polarity
+    n, on = np.asarray(counts)[mask], np.asarray(on_counts)[mask]
+    out = {"on_fraction": float(on.sum() / n.sum()) if n.sum() else None,
+           "hot_pixel_on_fraction": None, "hot_pixel_polarity_concentration": None}
+    if int((n >= 2).sum()) >= 2:
+        m, k = fit_hot_pixel_polarity(on, n)
+        out.update(hot_pixel_on_fraction=m, hot_pixel_polarity_concentration=k if np.isfinite(k) else "inf")
+    return out
 
 
 def neighbour_median(counts: np.ndarray) -> np.ndarray:

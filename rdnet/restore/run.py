@@ -20,7 +20,9 @@ the recording has them) and OUT.json beside it (OUT with suffix ``.json``):
   :class:`~rdnet.deblur.consistency.ConsistencyAccumulator`),
 * ``hot_pixels``: the pixels the hot-pixel pass flagged (:mod:`rdnet.restore.hotpixels`;
   every method but raw): ``factor``, ``min_rate_hz``, ``count``, ``pixels`` ([x, y], the
-  first 1,000) and ``events_dropped``,
+  first 1,000), ``events_dropped`` and ``polarity`` (their ON share and the simulator's
+  ``degrade.hot_pixel_on_fraction`` / ``hot_pixel_polarity_concentration`` fitted to them:
+  :func:`rdnet.restore.hotpixels.polarity_model`),
 * ``latency_dropped``: events before the first one ``restore.latency_us`` keeps (counted in
   ``events_in``, not scored),
 * ``settings``: the ``restore`` section used (``latency_us``: subtracted from every event
@@ -133,9 +135,11 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
         window_us = int(restorer.window_us or cfg.window_us)
         hot = None
         if method != "raw" and cfg.hot_pixel_factor > 0:
-            from rdnet.restore.hotpixels import hot_pixels, pixel_counts
-            counts, dur = pixel_counts(shifted(src.chunks(cfg.chunk_events), cfg.latency_us), src.width, src.height)
+            from rdnet.restore.hotpixels import hot_pixels, polarity_counts, polarity_model
+            counts, on_counts, dur = polarity_counts(shifted(src.chunks(cfg.chunk_events), cfg.latency_us),
+                                                     src.width, src.height)
             hot = hot_pixels(counts, dur, cfg.hot_pixel_factor, cfg.hot_pixel_min_hz)
+            hot_polarity = polarity_model(counts, on_counts, hot)
             log.info("hot-pixel pass: %d pixels flagged (factor %g, min %g Hz)", int(hot.sum()),
                      cfg.hot_pixel_factor, cfg.hot_pixel_min_hz)
         n_hot = 0
@@ -225,7 +229,7 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                 "hot_pixels": None if hot is None else {
                     "factor": cfg.hot_pixel_factor, "min_rate_hz": cfg.hot_pixel_min_hz, "count": int(hot.sum()),
                     "pixels": [[int(x), int(y)] for y, x in zip(*np.nonzero(hot))][:1000],
-                    "events_dropped": n_hot},
+                    "events_dropped": n_hot, "polarity": hot_polarity},
                 "settings": {**to_dict(cfg), "method": method}}
             result = _jsonable(result)
             json_tmp.write_text(json.dumps(result, indent=2) + "\n")

@@ -151,6 +151,26 @@ def hot_pixels(height: int, width: int, degrade: DegradeConfig,
     return idx, (rng.random(n) < m).astype(np.float64)
 
 
+def fit_hot_pixel_polarity(on_counts: np.ndarray, counts: np.ndarray) -> tuple[float, float]:
+    """``(hot_pixel_on_fraction, hot_pixel_polarity_concentration)`` of hot pixels with
+    ``on_counts`` ON events out of ``counts`` (one entry per hot pixel; at least two with 2+
+    events), by the method of moments of the Beta-binomial model of :mod:`rdnet.sim.effects`:
+    m = the mean per-pixel ON share; k = m (1 - m) / v - 1 with v the variance of the shares
+    less their binomial part (sum of q (1 - q) / (n - 1), unbiased). ``k`` is 0 when v reaches
+    m (1 - m) (one polarity per pixel) and ``inf`` when v <= 0 (all pixels alike)."""
+    on = np.asarray(on_counts, np.float64)
+    n = np.asarray(counts, np.float64)
+    keep = n >= 2
+    if keep.sum() < 2:
+        raise ValueError("fit_hot_pixel_polarity needs two hot pixels with two or more events each")
+    q = on[keep] / n[keep]
+    m = float(q.mean())
+    v = float(q.var(ddof=1) - np.mean(q * (1.0 - q) / (n[keep] - 1.0)))
+    if m <= 0.0 or m >= 1.0 or v <= 0.0:
+        return m, float("inf")
+    return m, float(max(m * (1.0 - m) / v - 1.0, 0.0))
+
+
 # --- in-kernel coefficients ------------------------------------------------------------
 
 def lowpass_coef(degrade: DegradeConfig) -> float:

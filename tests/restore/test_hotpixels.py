@@ -58,3 +58,22 @@ def test_noise_free_edge_passes_unchanged():
     mask = hot_pixels(counts, dur, 20, 100)
     assert not mask.any()
     assert drop_pixels(ev, mask) is ev
+
+
+def test_polarity_counts_and_model_known_values():
+    from rdnet.restore.hotpixels import polarity_counts, polarity_model
+    ev, _ = edge_noise_hot(seed=3, n_noise=200)
+    counts, on, dur = polarity_counts((ev[i:i + 500] for i in range(0, len(ev), 500)), ev.width, ev.height)
+    assert np.array_equal(counts, pixel_counts([ev], ev.width, ev.height)[0]) and on.sum() == int(ev.p.sum())
+    assert dur == ev.t[-1] - ev.t[0]
+    # two flagged pixels, one ON only and one OFF only: one polarity per pixel (k = 0), m = 0.5
+    c = np.array([[100, 100, 3]])
+    o = np.array([[100, 0, 1]])
+    mask = np.array([[True, True, False]])
+    got = polarity_model(c, o, mask)
+    assert got["on_fraction"] == 0.5 and got["hot_pixel_on_fraction"] == 0.5
+    assert got["hot_pixel_polarity_concentration"] == 0.0
+    # alike pixels: concentration "inf"; nothing flagged: no share
+    assert polarity_model(np.array([[1000, 1000]]), np.array([[700, 700]]), np.array([[True, True]]))[
+        "hot_pixel_polarity_concentration"] == "inf"
+    assert polarity_model(c, o, np.zeros_like(mask))["on_fraction"] is None

@@ -93,24 +93,24 @@ def test_bad_values_name_the_key(key, value):
 
 @pytest.mark.parametrize("m,k", [(0.7, 3.0), (0.3, 10.0), (0.5, 0.0)])
 def test_polarity_fit_recovers_the_simulated_on_fraction_and_concentration(m, k):
-    from rdnet.calib.stats import hot_pixel_polarity
+    from rdnet.sim.effects import fit_hot_pixel_polarity
     d = DegradeConfig(hot_pixel_fraction=0.3, hot_pixel_hz=200.0, hot_pixel_on_fraction=m,
                       hot_pixel_polarity_concentration=k)
     _, _, ev = _events(d, seed=1)
     flat = ev["y"].astype(np.int64) * W + ev["x"]
     _, inv = np.unique(flat, return_inverse=True)
-    got_m, got_k = hot_pixel_polarity(np.bincount(inv, weights=ev["p"].astype(float)), np.bincount(inv))
+    got_m, got_k = fit_hot_pixel_polarity(np.bincount(inv, weights=ev["p"].astype(float)), np.bincount(inv))
     assert abs(got_m - m) < 0.03
     assert got_k == pytest.approx(k, abs=0.3) if k < 1 else 0.75 * k < got_k < 1.33 * k
 
 
 def test_polarity_fit_known_values():
-    from rdnet.calib.stats import hot_pixel_polarity
+    from rdnet.sim.effects import fit_hot_pixel_polarity
     # every pixel at one share, many events: no spread beyond the binomial one -> inf
-    m, k = hot_pixel_polarity([700, 702, 698, 701], [1000, 1000, 1000, 1000])
+    m, k = fit_hot_pixel_polarity([700, 702, 698, 701], [1000, 1000, 1000, 1000])
     assert m == pytest.approx(0.70025) and k == float("inf")
     # one polarity per pixel: variance m (1 - m) -> k = 0
-    m, k = hot_pixel_polarity([0, 100, 100, 0], [100, 100, 100, 100])
+    m, k = fit_hot_pixel_polarity([0, 100, 100, 0], [100, 100, 100, 100])
     assert m == 0.5 and k == pytest.approx(0.0, abs=0.35)
     with pytest.raises(ValueError, match="two hot pixels"):
-        hot_pixel_polarity([3], [5])
+        fit_hot_pixel_polarity([3], [5])
