@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
 import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from contextlib import contextmanager
@@ -118,6 +119,16 @@ def numba_threads(n: int):
         cv2.setNumThreads(old_cv)
 
 
+def selection_threads(cfg: CalibrateConfig, candidates: int) -> int:
+    """Numba threads of the forward selection, which runs after the interpolation
+    candidates' refits, alone: ``calibrate.threads`` for each candidate that ran side by
+    side, at most the machine's cores (0: leave the setting alone). The events do not depend
+    on the number of threads (:mod:`rdnet.sim.sensor`)."""
+    if cfg.threads <= 0:
+        return 0
+    return max(1, min(cfg.threads * max(candidates, 1), os.cpu_count() or 1))
+
+
 def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg: CalibrateConfig, *,
                seed: int, interpolate, source: str, simulate_fn: SimulateFn | None,
                progress: bool) -> Calibration:
@@ -157,7 +168,9 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
         log.info("calibrating %s: %d sampled pixels (stride %d; search: %d, stride %d), %d real events, "
                  "%d simulated frames (%s interpolation)", source, ctx.n_pixels, ctx.stride, search.ctx.n_pixels,
                  search.ctx.stride, len(ctx.real), len(ctx.sim_t), method)
-        fit = calibrate_fit(search, obj, fine, progress=tick, basic=(chosen[5], chosen[6]))
+        # the forward selection runs alone: it gets the threads the candidates had together
+        with numba_threads(selection_threads(cfg, len(interps))):
+            fit = calibrate_fit(search, obj, fine, progress=tick, basic=(chosen[5], chosen[6]))
     finally:
         bar.close()
     frame_interp = {

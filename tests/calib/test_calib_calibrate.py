@@ -204,3 +204,15 @@ def test_on_only_hot_pixels_are_fitted_with_their_on_share_not_as_an_asymmetry()
     assert named == ["hot_pixels"], named
     assert hot["parameters"]["hot_pixel_on_fraction"] > 0.85, hot["parameters"]
     assert cal.report["fitted_config"]["degrade"]["hot_pixel_on_fraction"] > 0.85
+
+
+def test_selection_threads_known_values(monkeypatch):
+    """The forward selection gets the threads the interpolation candidates had together,
+    at most the cores; 0 leaves numba alone."""
+    from rdnet.calib import calibrate as cal_mod
+    monkeypatch.setattr(cal_mod.os, "cpu_count", lambda: 2)
+    assert cal_mod.selection_threads(dataclasses.replace(CFG, threads=1), 3) == 2
+    assert cal_mod.selection_threads(dataclasses.replace(CFG, threads=1), 1) == 1
+    assert cal_mod.selection_threads(dataclasses.replace(CFG, threads=0), 3) == 0
+    monkeypatch.setattr(cal_mod.os, "cpu_count", lambda: 16)
+    assert cal_mod.selection_threads(dataclasses.replace(CFG, threads=2), 3) == 6
