@@ -72,7 +72,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            "ON-only leak events from junction leakage"),
     Effect("hot_pixels", (Param("hot_pixel_fraction", 0.0005, 0.05), Param("hot_pixel_hz", 3.0, 3000.0)),
            "pixel_tail", "a few pixels fire continuously",
-           shape=(Param("hot_pixel_on_fraction", 0.0, 1.0),)),
+           shape=(Param("hot_pixel_on_fraction", 0.0, 1.0), Param("hot_pixel_polarity_concentration", 0.0, 1000.0))),
     Effect("timestamp_jitter", (Param("jitter_us", 20.0, 20000.0),), "rate_time",
            "random timestamp noise"),
     Effect("latency", (Param("latency_us", 50.0, 50000.0),), "lag",

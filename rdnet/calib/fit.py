@@ -70,6 +70,7 @@ from rdnet.calib import stats as st
 from rdnet.calib.context import CalibContext
 from rdnet.calib.effects import EFFECTS, OFF, THRESHOLD_SCALE, Effect, Param, absent_effects, apply, present_effects
 from rdnet.calib.engine import ADDITIVE_KEYS, Engine
+from rdnet.sim.effects import fit_hot_pixel_polarity
 from rdnet.events.core import Events
 from rdnet.sim.effects import needs_rng
 from rdnet.sim.settings import DegradeConfig, SensorConfig
@@ -394,20 +395,28 @@ def shape_estimate(obj: Objective, values: dict, effect: Effect) -> dict:
     """The shape parameters of ``effect`` read off the recording on top of ``values`` (the
     config without the effect); {} when the data do not show them. Shape parameters are
     estimated, not searched: the whole-sensor statistics barely move with them, so a search
-    would fit seed noise. Hot pixels: their ON share, the ON part of what the hot pixels
-    (:func:`_hot_pixel_mask`) fire beyond the simulation at the same pixels."""
+    would fit seed noise. Hot pixels (:func:`_hot_pixel_mask`), from what each fires beyond
+    the simulation at the same pixel: ``hot_pixel_on_fraction``, the ON share of it all, and
+    ``hot_pixel_polarity_concentration``, the Beta fit of the per-pixel shares
+    (:func:`rdnet.sim.effects.fit_hot_pixel_polarity`; with two or more such pixels and a
+    share strictly between 0 and 1)."""
     if effect.name != "hot_pixels":
         return {}
     at = _hot_pixel_mask(obj, values)
     if at is None:
         return {}
     sim, real = obj.stats_all(values), obj.real_all
-    extra = float(real["pixel_rate"].ravel()[at].sum() - sim["pixel_rate"].ravel()[at].sum())
-    extra_on = float(real["pixel_on_rate"].ravel()[at].sum() - sim["pixel_on_rate"].ravel()[at].sum())
-    if extra <= 0:
+    secs = float(real["seconds"])
+    n = np.maximum((real["pixel_rate"] - sim["pixel_rate"]).ravel()[at] * secs, 0.0)
+    on = np.clip((real["pixel_on_rate"] - sim["pixel_on_rate"]).ravel()[at] * secs, 0.0, n)
+    if n.sum() <= 0:
         return {}
-    q = effect.shape[0]
-    return {q.key: float(np.clip(extra_on / extra, q.lo, q.hi))}
+    share, spread = effect.shape
+    out = {share.key: float(np.clip(on.sum() / n.sum(), share.lo, share.hi))}
+    if 0.0 < out[share.key] < 1.0 and int((n >= 2).sum()) >= 2:
+        _, k = fit_hot_pixel_polarity(np.round(on), np.round(n))
+        out[spread.key] = float(np.clip(k, spread.lo, spread.hi))
+    return out
 
 
 # --- effect fits -----------------------------------------------------------------------------
