@@ -126,9 +126,18 @@ def _null_cases(generator: str, prefix: str) -> tuple[ProofCase, ...]:
                       scene=(("fps_hz", 60.0),)))
 
 
-def _effect_cases(generator: str, prefix: str, skip: frozenset = frozenset()) -> tuple[ProofCase, ...]:
+#: DVXplorer-like hot pixels (rdnet generator only; the circuit's hot pixels fire ON only): the
+#: polarity keys fitted to the real DVXplorer take's hot pixels (benchmarks/hot_pixel_polarity.py)
+_MIXED = {"hot_pixel_on_fraction": 0.66, "hot_pixel_polarity_concentration": 2.9}
+_MIXED_HOT_TEMPLATES = tuple(
+    ("hot_pixels_mixed_polarity", t[1], t[2], {**t[3], **_MIXED}, {**t[4], **_MIXED}) + t[5:]
+    for t in _EFFECT_TEMPLATES if t[0] == "hot_pixels_in_noise")
+
+
+def _effect_cases(generator: str, prefix: str, skip: frozenset = frozenset(),
+                  templates: tuple = _EFFECT_TEMPLATES) -> tuple[ProofCase, ...]:
     out = []
-    for name, effect, base, t1, t2, comp, motion in _EFFECT_TEMPLATES:
+    for name, effect, base, t1, t2, comp, motion in templates:
         for strength, truth in (("s1", t1), ("s2", t2)):
             for scene_name, scene in (("A", ()), ("B", SCENE_B)):
                 if (name, strength, scene_name) in skip:
@@ -140,10 +149,12 @@ def _effect_cases(generator: str, prefix: str, skip: frozenset = frozenset()) ->
 
 #: rdnet-generator cases beyond :data:`CASES` (which are the s1 / scene A ones of the six
 #: original effects): the other strength and scene, threshold mismatch, and the nulls
-#: that :data:`CASES` lacks. Run after :data:`CASES`, so those keep their results.
+#: that :data:`CASES` lacks, then hot pixels of mixed polarity (last, so that every earlier
+#: case keeps its random draws). Run after :data:`CASES`, so those keep their results.
 RDNET_EXTRA_CASES: tuple[ProofCase, ...] = _effect_cases(
     "rdnet", "", frozenset((t[0], "s1", "A") for t in _EFFECT_TEMPLATES[:6])) + tuple(
-    c for c in _null_cases("rdnet", "") if c.name != "null_thresholds")
+    c for c in _null_cases("rdnet", "") if c.name != "null_thresholds") + _effect_cases(
+    "rdnet", "", templates=_MIXED_HOT_TEMPLATES)
 
 #: Circuit-generator cases: every concealed effect at two strengths on two scenes, and three nulls.
 CIRCUIT_CASES: tuple[ProofCase, ...] = _null_cases("circuit", "circuit_") + _effect_cases("circuit", "circuit_")
