@@ -70,9 +70,8 @@ from rdnet.calib import stats as st
 from rdnet.calib.context import CalibContext
 from rdnet.calib.effects import EFFECTS, OFF, THRESHOLD_SCALE, Effect, Param, absent_effects, apply, present_effects
 from rdnet.calib.engine import ADDITIVE_KEYS, Engine
-from rdnet.sim.effects import fit_hot_pixel_polarity
 from rdnet.events.core import Events
-from rdnet.sim.effects import needs_rng
+from rdnet.sim.effects import fit_hot_pixel_polarity, needs_rng
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
 log = logging.getLogger(__name__)
