@@ -368,7 +368,7 @@ def _guess(obj: Objective, values: dict, effect: Effect, noise_reset: bool = Tru
         v = dict(values)
         v["hot_pixel_fraction"] = float(np.clip(hot.size / real.size, 0.0005, 0.05))
         v["hot_pixel_hz"] = float(np.clip(np.median(hot) - float(np.mean(sim)), 3.0, 3000.0))
-        v.update(shape_estimate(obj, values, effect))
+        v.update(shape_estimate(obj, values, effect, at))
         return v
     return None
 
@@ -390,7 +390,7 @@ def _hot_pixel_mask(obj: Objective, values: dict) -> np.ndarray | None:
     return real > cut if hot.size else None
 
 
-def shape_estimate(obj: Objective, values: dict, effect: Effect) -> dict:
+def shape_estimate(obj: Objective, values: dict, effect: Effect, at: np.ndarray | None = None) -> dict:
     """The shape parameters of ``effect`` read off the recording on top of ``values`` (the
     config without the effect); {} when the data do not show them. Shape parameters are
     estimated, not searched: the whole-sensor statistics barely move with them, so a search
@@ -398,10 +398,10 @@ def shape_estimate(obj: Objective, values: dict, effect: Effect) -> dict:
     the simulation at the same pixel: ``hot_pixel_on_fraction``, the ON share of it all, and
     ``hot_pixel_polarity_concentration``, the Beta fit of the per-pixel shares
     (:func:`rdnet.sim.effects.fit_hot_pixel_polarity`; with two or more such pixels and a
-    share strictly between 0 and 1)."""
+    share strictly between 0 and 1). ``at``: the hot-pixel mask when already found."""
     if effect.name != "hot_pixels":
         return {}
-    at = _hot_pixel_mask(obj, values)
+    at = _hot_pixel_mask(obj, values) if at is None else at
     if at is None:
         return {}
     sim, real = obj.stats_all(values), obj.real_all

@@ -200,11 +200,11 @@ def hot_pixel_events(pixels: np.ndarray, on_prob: np.ndarray, rate_hz: float, t0
     span = max(int(t1) - int(t0), 1)
     out = np.empty(n, EVENT_DTYPE)
     out["t"] = int(t0) + np.floor(rng.random(n) * span).astype(np.int64)
-    q = np.repeat(np.asarray(on_prob, np.float64), counts)
-    if np.all((q == 0.0) | (q == 1.0)):
-        out["p"] = q.astype(np.uint8)
+    on = np.asarray(on_prob, np.float64)
+    if np.all((on == 0.0) | (on == 1.0)):              # one polarity per pixel: no draw
+        out["p"] = np.repeat(on.astype(np.uint8), counts)
     else:
-        out["p"] = (rng.random(n) < q).astype(np.uint8)
+        out["p"] = (rng.random(n) < np.repeat(on, counts)).astype(np.uint8)
     y, x = np.divmod(idx, width)
     out["x"], out["y"] = x, y
     return out

@@ -66,8 +66,8 @@ class DegradeConfig:
     ``leak_spread_decades``  std of log10 of the per-pixel leak rate (v2e
                           ``noise_rate_cov_decades`` = 0.1).
     ``hot_pixel_on_fraction``  mean share of ON events among the hot pixels' events (0.5:
-                          balanced; real hot pixels lean ON: 0.69 on the DVXplorer take of
-                          ``../shared/real``, ``benchmarks/hot_pixel_polarity.py``).
+                          balanced; real hot pixels lean ON: 0.69 on a DVXplorer recording,
+                          README "Hot-pixel polarity").
     ``hot_pixel_polarity_concentration``  how alike the hot pixels' ON shares are: hot pixel
                           i fires ON with probability q_i ~ Beta(k m, k (1 - m)) (k this value,
                           m ``hot_pixel_on_fraction``); 0: each hot pixel fires one polarity, ON
