@@ -78,7 +78,9 @@ class Frames:
     def linear(self) -> np.ndarray:
         """Images as float32 linear intensity in [0, 1] (uint8 divided by 255)."""
         if self.images.dtype == np.uint8:
-            return self.images.astype(np.float32) / 255.0
+            lin = self.images.astype(np.float32)
+            lin /= np.float32(255.0)          # in place: no second full-size array (same values)
+            return lin
         return self.images
 
     def grey(self) -> np.ndarray:

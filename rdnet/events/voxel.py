@@ -43,6 +43,38 @@ def voxel_grid(events: Events, bins: int, t0_us: int, duration_us: int, *,
     """(bins, height, width) float32 voxel grid of the events in [t0, t0 + duration];
     with ``polarity="split"`` a (2, bins, height, width) grid of ON and OFF counts
     (module docstring; ``normalize`` then scales both channels by one divisor)."""
+    shape, terms = _voxel_terms(events, bins, t0_us, duration_us, mode, polarity)
+    size = int(np.prod(shape))
+    grid = sum(np.bincount(index, weights=w, minlength=size) for index, w in terms)
+    return normalize_voxel(grid.reshape(shape).astype(np.float32), normalize)
+
+
+def voxel_entries(events: Events, bins: int, t0_us: int, duration_us: int, *,
+                  mode: str = "hard", polarity: str = "signed") -> tuple[np.ndarray, np.ndarray, tuple]:
+    """The non-zero entries of :func:`voxel_grid` (no normalisation) without the dense
+    grid: ``(index, values, shape)``, their flat C-order positions in ``shape``
+    (increasing), their float32 values -- equal to the dense grid's there, the same sums
+    in the same order -- and the grid's shape. For windows that hold far fewer events
+    than voxels (``rdnet restore`` on a DAVIS346: about 1,300 events in 1.8 million
+    voxels)."""
+    shape, terms = _voxel_terms(events, bins, t0_us, duration_us, mode, polarity)
+    index = np.concatenate([i for i, _ in terms])
+    weights = np.concatenate([w for _, w in terms])
+    pos, inverse = np.unique(index, return_inverse=True)
+    # one bincount per term, added up: the sums voxel_grid forms, in the same order
+    values, start = np.zeros(pos.size), 0
+    for i, w in terms:
+        values = values + np.bincount(inverse[start:start + i.size], weights=w, minlength=pos.size)
+        start += i.size
+    values = values.astype(np.float32)
+    nz = values != 0
+    return pos[nz].astype(np.int64), values[nz], shape
+
+
+def _voxel_terms(events: Events, bins: int, t0_us: int, duration_us: int, mode: str,
+                 polarity: str) -> tuple[tuple, list[tuple[np.ndarray, np.ndarray]]]:
+    """The grid shape and its terms: one or two (flat index, float64 weight) arrays per
+    event, the grid being the sum of each term's weights at its indices."""
     if polarity not in POLARITY_MODES:
         raise ValidationError("polarity", f"unknown polarity mode {polarity!r}; use 'signed' or 'split'")
     if bins < 1:
@@ -56,30 +88,25 @@ def voxel_grid(events: Events, bins: int, t0_us: int, duration_us: int, *,
     a = events.array[i0:i1]
     pix = a["y"].astype(np.int64) * W + a["x"].astype(np.int64)
     if polarity == "signed":
-        pol = a["p"].astype(np.float32) * 2.0 - 1.0
-        planes = 1
+        pol = a["p"].astype(np.float64) * 2.0 - 1.0
+        shape = (bins, H, W)
     else:   # ON events to plane 0, OFF events to plane 1, each with weight 1
-        pol = np.ones(a.size, np.float32)
+        pol = np.ones(a.size, np.float64)
         pix = pix + (a["p"] == 0).astype(np.int64) * (bins * H * W)
-        planes = 2
+        shape = (2, bins, H, W)
     # Integer arithmetic for the bin index: float (t - t0) / T * bins can fall just below
     # an exact bin boundary and put the event in the previous bin.
     dt = a["t"] - np.int64(t0_us)
-    size = planes * bins * H * W
     if mode == "hard":
         b = np.minimum(dt * bins // duration_us, bins - 1)
-        grid = np.bincount(b * (H * W) + pix, weights=pol, minlength=size)
-    elif mode == "bilinear":
+        return shape, [(b * (H * W) + pix, pol)]
+    if mode == "bilinear":
         num = dt * (bins - 1)            # tau = num / T, split exactly into floor and fraction
         lo = num // duration_us
         frac = (num - lo * duration_us).astype(np.float64) / float(duration_us)
         hi = np.minimum(lo + 1, bins - 1)
-        grid = np.bincount(lo * (H * W) + pix, weights=pol * (1.0 - frac), minlength=size)
-        grid += np.bincount(hi * (H * W) + pix, weights=pol * frac, minlength=size)
-    else:
-        raise ValidationError("mode", f"unknown voxel mode {mode!r}; use 'hard' or 'bilinear'")
-    grid = grid.reshape((bins, H, W) if planes == 1 else (2, bins, H, W)).astype(np.float32)
-    return normalize_voxel(grid, normalize)
+        return shape, [(lo * (H * W) + pix, pol * (1.0 - frac)), (hi * (H * W) + pix, pol * frac)]
+    raise ValidationError("mode", f"unknown voxel mode {mode!r}; use 'hard' or 'bilinear'")
 
 
 def normalization_scale(grid: np.ndarray, normalize: str | None) -> float:

@@ -42,6 +42,7 @@ from torch import nn
 from rdnet.errors import ConfigError
 from rdnet.nn.blocks import nafblock_params
 from rdnet.nn.decision import offset_threshold
+from rdnet.nn.sparse import SparseVoxels
 from rdnet.nn.stage import StageNet
 
 #: Architecture hyper-parameters per named size (shared by both stages).
@@ -134,7 +135,7 @@ class RestoreNet(nn.Module):
         logit = o + OCCUPANCY_GAIN * (2.0 * (counts > 0).to(o.dtype) - 1.0)
         return mu, logit
 
-    def sparse_heads(self, image: torch.Tensor | None, counts: torch.Tensor, logit_min: float):
+    def sparse_heads(self, image: torch.Tensor | None, counts, logit_min: float):
         """The occupancy decision of :meth:`heads` without the dense count head, for
         inference: ``(keep, mu_at)``. ``keep`` is ``logit >= logit_min`` (bool, (B, 2 * bins,
         H, W), the memory format of the inputs): the same mask as on :meth:`heads`'s logits,
@@ -142,7 +143,12 @@ class RestoreNet(nn.Module):
         there. ``mu_at(b, c, y, x)`` (int64 index arrays) gives the count head ``mu`` at
         those voxels only, a 3 x 3 x width dot product each: equal to :meth:`heads`'s ``mu``
         up to the order of the float32 sums. Saves half the output conv and every dense
-        pass over ``mu`` (about 15 % of a DAVIS346 window on 2 cores)."""
+        pass over ``mu`` (about 15 % of a DAVIS346 window on 2 cores).
+
+        ``counts`` may be a :class:`rdnet.nn.sparse.SparseVoxels` (one sample): the event
+        branch's intro conv then reads its non-zero voxels alone, and the input's occupancy
+        enters the decision at those voxels only (the grid, its padding and two dense passes
+        over it are never formed); equal to the dense input up to float rounding."""
         if self.output != "counts":
             raise ValueError("sparse_heads() exists for output='counts' only")
         feats, _, H, W = self.net.decoded(image, counts)
@@ -153,15 +159,31 @@ class RestoreNet(nn.Module):
         # GAIN * (2 [x > 0] - 1) is +-GAIN); float32 addition is monotone, so each comparison
         # is one on o against the smallest float32 that reaches logit_min after the offset
         lo_on, lo_off = (offset_threshold(logit_min, g) for g in (OCCUPANCY_GAIN, -OCCUPANCY_GAIN))
-        keep = o >= torch.where(counts > 0, lo_on, lo_off)
+        if isinstance(counts, SparseVoxels):
+            keep = o >= lo_off
+            c, y, x = (torch.as_tensor(a, device=o.device) for a in counts.coords())
+            occupied = torch.as_tensor(counts.values > 0, device=o.device)
+            keep[0, c[occupied], y[occupied], x[occupied]] = o[0, c[occupied], y[occupied], x[occupied]] >= lo_on
+
+            def count_at(b, c, y, x):
+                return torch.as_tensor(counts.at(c, y, x), device=feats.device)
+        else:
+            keep = o >= torch.where(counts > 0, lo_on, lo_off)
+
+            def count_at(b, c, y, x):
+                return counts[b, c, y, x]
 
         def mu_at(b, c, y, x) -> torch.Tensor:
             b, c, y, x = (torch.as_tensor(np.asarray(a, np.int64), device=feats.device) for a in (b, c, y, x))
-            padded = F.pad(feats, (1, 1, 1, 1))
             k = weight.shape[-1]
-            patch = torch.stack([padded[b, :, y + dy, x + dx] for dy in range(k) for dx in range(k)], 1)
+            Hp, Wp = feats.shape[-2:]
+            tap = torch.arange(k * k, device=feats.device)
+            yy = y[:, None] + (tap // k - k // 2)[None]          # (n, taps): the output conv's inputs
+            xx = x[:, None] + (tap % k - k // 2)[None]
+            inside = (yy >= 0) & (yy < Hp) & (xx >= 0) & (xx < Wp)     # outside: its zero padding
+            patch = feats[b[:, None], :, yy.clamp(0, Hp - 1), xx.clamp(0, Wp - 1)] * inside[..., None]
             w = weight[c].permute(0, 2, 3, 1).reshape(len(c), k * k, -1)    # (n, taps, width)
-            return _count_head(counts[b, c, y, x], (patch * w).sum((1, 2)) + bias[c])
+            return _count_head(count_at(b, c, y, x), (patch * w).sum((1, 2)) + bias[c])
         return keep, mu_at
 
     def forward(self, image: torch.Tensor | None, voxel: torch.Tensor, return_heads: bool = False):

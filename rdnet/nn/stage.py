@@ -39,6 +39,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from rdnet.nn.blocks import Downsample, Upsample, naf_stack
+from rdnet.nn.sparse import SparseVoxels, sparse_conv2d
 
 
 class EncoderBranch(nn.Module):
@@ -149,20 +150,23 @@ class StageNet(nn.Module):
             out = out + recv_in
         return out[..., :H, :W]
 
-    def decoded(self, image: torch.Tensor | None, events: torch.Tensor | None = None):
+    def decoded(self, image: torch.Tensor | None, events: torch.Tensor | SparseVoxels | None = None):
         """Everything of :meth:`forward` before the output conv: ``(x, recv_in, H, W)``,
         the decoder's last features (B, width, H', W') and the receiving branch's input,
         both at the padded size H' x W' (module docstring), and the input size H x W.
+        ``events`` may be a :class:`rdnet.nn.sparse.SparseVoxels` (one sample, inference)
+        when the events are the receiving branch: its intro conv then reads the non-zero
+        voxels alone and ``recv_in`` is None.
         ``forward`` is ``(ending(x) [+ recv_in])[..., :H, :W]``; a caller that needs only
         some output channels, or only some pixels, applies ``self.ending`` to ``x`` itself
         (:meth:`rdnet.nn.models.RestoreNet.sparse_heads`)."""
+        sparse = isinstance(events, SparseVoxels)
+        if sparse and self.fuse_into != "event":
+            raise ValueError("sparse events feed the receiving event branch only (fuse_into='event')")
+        ev_shape = None if events is None else (1, *events.shape) if sparse else tuple(events.shape)
         if self.image_branch is None:
             if image is not None:
                 raise ValueError("this stage has no image branch: pass image=None")
-            if events is None or events.shape[1] != self.event_channels:
-                got = None if events is None else events.shape[1]
-                raise ValueError(f"expected {self.event_channels} event channels, got {got}")
-            H, W = events.shape[-2:]
             img = None
         else:
             if image is None or image.shape[1] != self.image_channels:
@@ -171,20 +175,26 @@ class StageNet(nn.Module):
             H, W = image.shape[-2:]
             img = self._pad(image, "replicate")
         if self.event_branch is not None:
-            if events is None or events.shape[1] != self.event_channels:
-                got = None if events is None else events.shape[1]
+            if events is None or ev_shape[1] != self.event_channels:
+                got = None if events is None else ev_shape[1]
                 raise ValueError(f"expected {self.event_channels} event channels, got {got}")
-            if image is not None and events.shape[-2:] != image.shape[-2:]:
+            if image is not None and tuple(ev_shape[-2:]) != tuple(image.shape[-2:]):
                 raise ValueError(f"image {tuple(image.shape[-2:])} and events "
-                                 f"{tuple(events.shape[-2:])} sizes differ")
-            evt = self._pad(events, "constant")
+                                 f"{tuple(ev_shape[-2:])} sizes differ")
+            evt = None if sparse else self._pad(events, "constant")
+            if self.image_branch is None:
+                H, W = ev_shape[-2:]
         else:
             evt = None
         recv_in, src_in = (evt, img) if self.fuse_into == "event" else (img, evt)
         src_feats = self.source(src_in) if self.source is not None else None
 
         branch = self.receiving
-        x = branch.intro(recv_in)
+        if sparse:          # the intro conv from the non-zero voxels alone (rdnet.nn.sparse)
+            m = 2 ** self.levels
+            x = sparse_conv2d(events, branch.intro, (H + (-H) % m, W + (-W) % m))
+        else:
+            x = branch.intro(recv_in)
         skips = []
         for i, (blocks, down) in enumerate(zip(branch.blocks, branch.downs)):
             x = blocks(x)

@@ -58,7 +58,7 @@ import numpy as np
 
 from rdnet.errors import ConfigError, FormatError, ModelNotFoundError, ValidationError
 from rdnet.events.core import Events
-from rdnet.events.voxel import entry_events, voxel_events, voxel_grid
+from rdnet.events.voxel import entry_events, voxel_entries, voxel_events, voxel_grid
 
 log = logging.getLogger(__name__)
 
@@ -145,6 +145,7 @@ class LearnedRestorer:
         ``needs_frames``, ignored otherwise)."""
         import torch
         from rdnet.nn.decision import sparse_decided_entries
+        from rdnet.nn.sparse import SPARSE_MAX_DENSITY, SparseVoxels
 
         t0_us, t1_us = int(t0_us), int(t1_us)
         if t1_us <= t0_us:
@@ -155,8 +156,14 @@ class LearnedRestorer:
         ev = events.slice_time(t0_us, t1_us)            # half-open: back-to-back windows share nothing
         dur = t1_us - t0_us
         split = self.output == "counts"
-        grid = voxel_grid(ev, self.bins, t0_us, dur, mode=self.mode, polarity="split" if split else "signed")
-        x = self._tensor(grid.reshape(1, -1, H, W))
+        if split:        # the non-zero voxels; the dense grid only for a dense window (rdnet.nn.sparse)
+            index, values, shape = voxel_entries(ev, self.bins, t0_us, dur, mode=self.mode, polarity="split")
+            x = SparseVoxels.of(index, values, shape, self.channels_last)
+            if x.density > SPARSE_MAX_DENSITY:
+                x = x.dense(self.device)
+        else:
+            grid = voxel_grid(ev, self.bins, t0_us, dur, mode=self.mode, polarity="signed")
+            x = self._tensor(grid.reshape(1, -1, H, W))
         img = self._tensor(self._image(frame, H, W)) if self.net.image_channels else None
         with torch.inference_mode():
             if split:

@@ -159,7 +159,8 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
         total = getattr(src, "n_events", None)
         start, cpu_start = time.perf_counter(), time.process_time()
         with atomic_output(json_path_for(out)) as json_tmp, \
-                H5RecordingWriter(out, src.width, src.height, getattr(src, "sensor", "") or "") as writer, \
+                H5RecordingWriter(out, src.width, src.height, getattr(src, "sensor", "") or "",
+                                  frame_compression=cfg.frame_compression) as writer, \
                 tqdm(total=total, desc=f"restore {restorer.name}", unit="ev", unit_scale=True,
                      disable=(not progress) or None) as bar:
             early: list[int] = []                   # events before the first one the shift keeps

@@ -134,3 +134,23 @@ def test_signed_output_restores_the_same_events_in_both_layouts(tmp_path):
     r = load_restorer(_checkpoint(tmp_path / "s.pt", 0, output="signed"), has_frames=False, params=PARAMS)
     outs = _both_layouts(r, ev, frames=False)
     assert len(outs[False]) > 0 and _diff(outs[True], outs[False]) <= MAX_LAYOUT_DIFF
+
+
+@pytest.mark.parametrize("image_channels", [1, 0])
+def test_sparse_and_dense_windows_restore_the_same_events(tmp_path, monkeypatch, image_channels):
+    """LearnedRestorer.restore feeds a window's non-zero voxels (rdnet.nn.sparse) when at most
+    SPARSE_MAX_DENSITY of them are non-zero, the dense grid otherwise: forced either way, the
+    same events as the reference path."""
+    import rdnet.nn.sparse as sparse
+    ev, _ = edge_noise_hot(seed=4)
+    has_frames = bool(image_channels)
+    r = load_restorer(_checkpoint(tmp_path / "m.pt", image_channels), has_frames=has_frames, params=PARAMS)
+    r.channels_last = prepare_for_inference(r.net, r.device, channels_last=False)
+    ref = _reference(r, ev, has_frames)
+    outs = {}
+    for limit in (0.0, 1.0):                        # 0: every window dense; 1: every window sparse
+        monkeypatch.setattr(sparse, "SPARSE_MAX_DENSITY", limit)
+        outs[limit] = _restore_all(r, ev, has_frames)
+    assert 0 < len(ref) and len(ref) != len(ev)
+    np.testing.assert_array_equal(outs[0.0], ref)
+    assert _diff(outs[1.0], ref) <= MAX_LAYOUT_DIFF

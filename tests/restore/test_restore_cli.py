@@ -87,6 +87,25 @@ def test_cli_with_frames_copies_frames_and_scores(tmp_path):
     assert 0 < len(kept) < len(ev) and np.isin(kept.array, ev.array).all()   # a subset, nothing invented
 
 
+@pytest.mark.parametrize("setting, filter_name", [(None, None), ("gzip", "gzip"), ("lzf", "lzf")])
+def test_frames_are_copied_with_restore_frame_compression(tmp_path, setting, filter_name):
+    import h5py
+    _write(tmp_path / "in.h5", frames=True)
+    out = tmp_path / "o.h5"
+    extra = [] if setting is None else ["--set", f"restore.frame_compression={setting}"]
+    assert main(["restore", str(tmp_path / "in.h5"), str(out), "--method", "baf", "--no-progress", *extra]) == 0
+    with h5py.File(out) as f:
+        assert f["frames/images"].compression == filter_name          # default none: stored as they are
+        assert f["events/t"].compression == "gzip"                     # events: always gzip
+    np.testing.assert_array_equal(read_recording(out).frames.images, read_recording(tmp_path / "in.h5").frames.images)
+
+
+def test_unknown_frame_compression_is_a_config_error_naming_the_key():
+    from rdnet.errors import ConfigError
+    with pytest.raises(ConfigError, match="restore.frame_compression"):
+        RestoreConfig(frame_compression="zstd")
+
+
 def _support(ev, dt_us):
     """Brute-force reference: distinct neighbour pixels (3 x 3, self excluded) that fired
     within dt before each event (earlier in the stream)."""

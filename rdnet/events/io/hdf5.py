@@ -338,11 +338,16 @@ class H5RecordingWriter:
     to a temporary file in the target folder that replaces ``path`` on a successful
     :meth:`close`; on an exception inside the ``with`` block (or :meth:`abort`) the
     temporary file is removed and ``path`` is untouched.
+
+    ``compression`` (gzip, lzf or none) and ``compression_level`` apply to the events;
+    ``frame_compression`` to the frames ("same": as the events). Camera frames are mostly
+    sensor noise to a lossless coder: gzip saves 16 % of the DAVIS346 road recording's
+    APS frames at 2.7 ms per frame, against about 0.1 ms to store them as they are.
     """
 
     def __init__(self, path: str | Path, width: int, height: int, sensor: str = "", *,
                  compression: str | None = "gzip", compression_level: int | None = None,
-                 chunk_events: int = DEFAULT_CHUNK_EVENTS):
+                 chunk_events: int = DEFAULT_CHUNK_EVENTS, frame_compression: str | None = "same"):
         if int(width) <= 0 or int(height) <= 0:
             raise ValidationError("width/height", f"sensor size must be positive, got {width}x{height}")
         if chunk_events <= 0:
@@ -350,6 +355,8 @@ class H5RecordingWriter:
         self.path = Path(path)
         self.width, self.height = int(width), int(height)
         self._comp = _compression_kwargs(compression, compression_level)
+        self._frame_comp = self._comp if frame_compression == "same" else \
+            _compression_kwargs(frame_compression, compression_level)
         self._chunk = int(chunk_events)
         self._streams: dict[str, _Stream] = {}
         self._frames: dict | None = None
@@ -479,7 +486,7 @@ class H5RecordingWriter:
             g = f.create_group("frames")
             shape = fr.images.shape[1:]
             g.create_dataset("images", shape=(0, *shape), maxshape=(None, *shape), dtype=fr.images.dtype,
-                             chunks=(1, *shape), **self._comp)
+                             chunks=(1, *shape), **self._frame_comp)
             for k in ("t", "exposure_us"):
                 g.create_dataset(k, shape=(0,), maxshape=(None,), dtype=np.int64, chunks=(4096,))
             st = self._frames = {"group": g, "n": 0, "last_t": None,
