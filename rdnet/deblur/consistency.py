@@ -146,8 +146,8 @@ class ConsistencyAccumulator:
         n_int = max(len(self.frame_t) - 1, 0)
         self._moments = np.zeros((n_int, len(self.names), len(MOMENTS)))   # closed intervals
         self._lo = 0                                    # first open interval ...
-        # ... and the counts of the open ones, a row each: (stream, ON/OFF, pixel) flat
-        self._counts = np.zeros((0, len(self.names) * 2 * self.n_pixels), np.int64)
+        # ... and the counts of the open ones an event reached, by interval: (stream, ON/OFF, pixel) flat
+        self._rows: dict[int, np.ndarray] = {}
         self._until: dict[str, int | None] = dict.fromkeys(self.names)
         self._events = dict.fromkeys(self.names, 0)
         self._span: tuple[int, int] | None = None       # first and last time of the window stream
@@ -160,7 +160,7 @@ class ConsistencyAccumulator:
     @property
     def open_intervals(self) -> int:
         """Frame intervals whose count images are held now (streams x 2 x P int64 each)."""
-        return self._counts.shape[0]
+        return len(self._rows)
 
     def add(self, name: str, events: Events, until: int | None = None) -> None:
         """Feed stream ``name`` its next ``events``; ``until``: all its events before this
@@ -175,12 +175,14 @@ class ConsistencyAccumulator:
             if s == 0:
                 self._span = (t_lo if self._span is None else self._span[0], t_hi)
             k, pix, on = interval_events(events, self, self._lo, len(self._moments) - self._lo)
-            if k.size:
-                rows = int(k.max()) + 1
-                if rows > self._counts.shape[0]:
-                    grow = np.zeros((rows - self._counts.shape[0], self._counts.shape[1]), np.int64)
-                    self._counts = np.concatenate([self._counts, grow])
-                np.add.at(self._counts, (k, (2 * s + ~on) * self.n_pixels + pix), 1)   # ON: 2s, OFF: 2s + 1
+            if k.size:                                  # k: intervals counted from the first open one
+                flat = (2 * s + ~on) * self.n_pixels + pix  # ON: 2s, OFF: 2s + 1
+                size = len(self.names) * 2 * self.n_pixels
+                for i in np.unique(k):                  # a row per interval, made when an event reaches it
+                    row = self._rows.get(self._lo + int(i))
+                    if row is None:
+                        row = self._rows[self._lo + int(i)] = np.zeros(size, np.int64)
+                    np.add.at(row, flat[k == i], 1)
             until = t_hi if until is None else until
         if until is not None:
             before = self._until[name]
@@ -190,13 +192,14 @@ class ConsistencyAccumulator:
         done = int(np.searchsorted(self.frame_t[1:], min(self._until.values()), side="left"))
         for k in range(self._lo, done):                 # closed: t_{k+1} < every stream's until
             self._moments[k] = self._reduce(k, self._open_counts(k))
-        self._counts = self._counts[max(done - self._lo, 0):]
+        for k in [k for k in self._rows if k < done]:
+            del self._rows[k]
         self._lo = max(done, self._lo)
 
     def _open_counts(self, k: int) -> np.ndarray | None:
         """(streams, 2, P) counts of the open interval k; None when no event reached it yet."""
-        i = k - self._lo
-        return self._counts[i].reshape(len(self.names), 2, -1) if i < self._counts.shape[0] else None
+        row = self._rows.get(k)
+        return None if row is None else row.reshape(len(self.names), 2, -1)
 
     def _log_frame(self, k: int) -> np.ndarray:
         """Flat log intensity of frame k (:meth:`_reduce` keeps the later frame of an interval
