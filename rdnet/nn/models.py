@@ -171,10 +171,11 @@ class RestoreNet(nn.Module):
             keep = o >= torch.where(counts > 0, lo_on, lo_off)
 
             def count_at(b, c, y, x):
-                return counts[b, c, y, x]
+                return counts[tuple(torch.as_tensor(a, device=counts.device) for a in (b, c, y, x))]
 
         def mu_at(b, c, y, x) -> torch.Tensor:
-            b, c, y, x = (torch.as_tensor(np.asarray(a, np.int64), device=feats.device) for a in (b, c, y, x))
+            where = tuple(np.asarray(a, np.int64) for a in (b, c, y, x))     # host arrays, for count_at
+            b, c, y, x = (torch.as_tensor(a, device=feats.device) for a in where)
             k = weight.shape[-1]
             Hp, Wp = feats.shape[-2:]
             tap = torch.arange(k * k, device=feats.device)
@@ -183,7 +184,7 @@ class RestoreNet(nn.Module):
             inside = (yy >= 0) & (yy < Hp) & (xx >= 0) & (xx < Wp)     # outside: its zero padding
             patch = feats[b[:, None], :, yy.clamp(0, Hp - 1), xx.clamp(0, Wp - 1)] * inside[..., None]
             w = weight[c].permute(0, 2, 3, 1).reshape(len(c), k * k, -1)    # (n, taps, width)
-            return _count_head(count_at(b, c, y, x), (patch * w).sum((1, 2)) + bias[c])
+            return _count_head(count_at(*where), (patch * w).sum((1, 2)) + bias[c])
         return keep, mu_at
 
     def forward(self, image: torch.Tensor | None, voxel: torch.Tensor, return_heads: bool = False):
