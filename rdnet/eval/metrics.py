@@ -210,7 +210,12 @@ def dominant_degradation(degrade: Mapping[str, Sequence[float]]) -> np.ndarray:
     """Per sample, the name of the degradation with the largest *relative* strength:
     each ``/degrade/<key>`` column is scaled by its maximum over the file
     (``onoff_ratio`` as ``|log ratio|``, so 1 = off); "none" where all are off.
-    A coarse grouping for per-degradation tables (values have different units)."""
+    A coarse grouping for per-degradation tables (values have different units).
+    A column that holds one value for every sample is left out: it tells the samples
+    nothing apart, and scaled by its maximum it would read 1 everywhere and name every
+    sample whose randomised degradations are all below their maxima (the shape keys
+    such as ``leak_spread_decades`` or ``hot_pixel_on_fraction``, which the study does not
+    randomise, did so: 9 of the 37 test samples)."""
     keys = sorted(degrade)
     if not keys:
         raise ValueError("no degradation columns")
@@ -219,7 +224,8 @@ def dominant_degradation(degrade: Mapping[str, Sequence[float]]) -> np.ndarray:
         v = np.asarray(degrade[k], np.float64)
         v = np.abs(np.log(np.where(v > 0, v, 1.0))) if k == "onoff_ratio" else np.abs(v)
         mx = float(v.max()) if v.size else 0.0
-        cols.append(v / mx if mx > 0 else np.zeros_like(v))
+        constant = v.size > 1 and bool(np.all(v == v[0]))
+        cols.append(v / mx if mx > 0 and not constant else np.zeros_like(v))
     s = np.stack(cols, 1)
     names = np.array(keys, dtype=object)[np.argmax(s, 1)]
     names[s.max(1) <= 0] = "none"

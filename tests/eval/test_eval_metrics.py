@@ -91,6 +91,15 @@ def test_dominant_degradation_uses_relative_strength():
     assert dominant_degradation(deg).tolist() == ["none", "shot_noise_hz", "refractory_us", "onoff_ratio"]
 
 
+def test_dominant_degradation_ignores_columns_that_do_not_vary():
+    # a shape key held at one value (alphabetically first, so it would win every tie at 1.0)
+    deg = {"a_shape": [0.5, 0.5, 0.5, 0.5],
+           "refractory_us": [0.0, 100.0, 1000.0, 0.0],
+           "shot_noise_hz": [0.0, 2.0, 0.5, 0.0]}
+    assert dominant_degradation(deg).tolist() == ["none", "shot_noise_hz", "refractory_us", "none"]
+    assert dominant_degradation({"only": [3.0]}).tolist() == ["only"]       # one sample: nothing to compare
+
+
 def test_samples_without_motion_are_left_out_of_the_image_means():
     from rdnet.eval.metrics import has_motion, image_means, motion_only
     rng = np.random.default_rng(3)
