@@ -1,5 +1,5 @@
 """A small count-output RestoreNet with perturbed weights (not the identity a fresh one
-starts as), for the decision and layout tests of this folder."""
+starts as), and inputs for it, for the decision and layout tests of this folder."""
 import torch
 
 from rdnet.nn.models import RestoreNet
@@ -16,3 +16,11 @@ def perturbed_count_net(seed: int, scale: float) -> RestoreNet:
             for p in net.parameters():
                 p.add_(scale * torch.randn(p.shape))
     return net.eval()
+
+
+def count_inputs(rate: float, seed: int = 6) -> tuple[torch.Tensor, torch.Tensor]:
+    """(counts, image) for :func:`perturbed_count_net`: Poisson(``rate``) ON/OFF counts of
+    3 bins and a uniform image, 13 x 19 (an odd size, padded inside the network)."""
+    g = torch.Generator().manual_seed(seed)
+    counts = torch.poisson(torch.full((1, 6, 13, 19), rate), generator=g)
+    return counts, torch.rand(1, 1, 13, 19, generator=g)

@@ -6,7 +6,7 @@ exactly), the layout kept; contiguous inputs and gradient-recording passes (trai
 import numpy as np
 import pytest
 import torch
-from _nets import perturbed_count_net
+from _nets import count_inputs, perturbed_count_net
 
 from rdnet.nn.blocks import LayerNorm2d
 
@@ -120,9 +120,7 @@ def test_nafblock_folded_inference_equals_the_block():
 def test_sparse_heads_keep_the_dense_decision_exactly(channels_last):
     from rdnet.nn.decision import decided_entries, decision_dict, logit_threshold, sparse_decided_entries
     net = perturbed_count_net(5, 0.3)
-    g = torch.Generator().manual_seed(6)
-    x = torch.poisson(torch.full((1, 6, 13, 19), 0.4), generator=g)      # odd size: padded inside
-    img = torch.rand(1, 1, 13, 19, generator=g)
+    x, img = count_inputs(0.4)
     if channels_last:
         net.to(memory_format=torch.channels_last)
         x, img = (t.contiguous(memory_format=torch.channels_last) for t in (x, img))

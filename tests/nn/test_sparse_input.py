@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-from _nets import perturbed_count_net
+from _nets import count_inputs, perturbed_count_net
 
 from rdnet.events.core import EVENT_DTYPE, Events
 from rdnet.events.voxel import voxel_entries, voxel_grid
@@ -99,9 +99,7 @@ def test_sparse_conv2d_refuses_what_it_does_not_compute():
 def test_sparse_heads_on_a_sparse_input_keep_the_dense_decision(channels_last):
     from rdnet.nn.decision import logit_threshold
     net = perturbed_count_net(5, 0.3)
-    g = torch.Generator().manual_seed(6)
-    dense = torch.poisson(torch.full((1, 6, 13, 19), 0.1), generator=g)       # odd size: padded inside
-    img = torch.rand(1, 1, 13, 19, generator=g)
+    dense, img = count_inputs(0.1)
     flat = dense[0].numpy().ravel()
     index = np.flatnonzero(flat)
     x = SparseVoxels.of(index, flat[index], (6, 13, 19), channels_last)
