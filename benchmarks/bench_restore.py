@@ -67,16 +67,18 @@ def settle() -> float:
     return time.perf_counter() - t
 
 
-def run_one(path: Path, method: str, work: Path, scores: bool = True) -> dict:
+def run_one(path: Path, method: str, work: Path, scores: bool = True, root: Path = ROOT) -> dict:
+    """One ``rdnet restore`` of ``path`` into ``work/<stem>_<method>.h5`` by the code of the
+    checkout ``root`` (its working directory and first on the path), in a child process."""
     waited = settle() if SETTLE["seconds"] > 0 else 0.0
     out = work / f"{path.stem}_{method}.h5"
     cmd = [sys.executable, "-m", "rdnet.cli", "restore", str(path), str(out), "--method", method, "--no-progress",
            "--set", f"restore.scores={'true' if scores else 'false'}"]
-    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    env = {**os.environ, "PYTHONPATH": str(root) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     load = os.getloadavg()[0]
     t = time.perf_counter()
     with open(work / "stderr.txt", "w+") as err:
-        proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=err, text=True)
+        proc = subprocess.Popen(cmd, cwd=root, env=env, stdout=subprocess.DEVNULL, stderr=err, text=True)
         _, status, usage = os.wait4(proc.pid, 0)      # this child's own CPU time and peak RSS
         wall = time.perf_counter() - t
         proc.returncode = os.waitstatus_to_exitcode(status)

@@ -5,15 +5,15 @@ changes it is meant to show.
 
 Each round restores the DAVIS346 recording written once (x1) and ``K`` times back to back
 (xK, as ``bench_restore.py --steady``) with the old and the new code, each in a child
-process started in its own checkout (``python -c`` with that checkout first on the path;
-the import is checked). Per round and code: the walls, the steady-state cost per second of
-recording ``(wall_xK - wall_x1) / ((K - 1) span)`` and its realtime factor (inverse). The
+process started in its own checkout (``python -m rdnet.cli`` run in that checkout, with it
+first on the path: ``bench_restore.run_one``). Per round and code: the walls, the
+steady-state cost per second of recording ``(wall_xK - wall_x1) / ((K - 1) span)`` and its realtime factor (inverse). The
 outputs of the two codes are compared event for event on the x1 file.
 
     git worktree add /tmp/old <rev>
     PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_restore_ab.py --old /tmp/old --rounds 4 \\
         --out benchmarks/results/restore_learned_speed_ab.json
-    PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_restore_ab.py --old /tmp/old --rounds 2 \
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_restore_ab.py --old /tmp/old --rounds 2 \\
         --recording prophesee_evk4_night --out benchmarks/results/restore_learned_speed_ab_night.json
 """
 from __future__ import annotations
@@ -25,13 +25,12 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_restore import RECORDINGS, ROOT, repeated_h5  # noqa: E402
+from bench_restore import RECORDINGS, ROOT, repeated_h5, run_one  # noqa: E402
 
 log = logging.getLogger("bench_restore_ab")
 
@@ -41,20 +40,11 @@ def _rev(root: Path) -> str:
                           text=True).stdout.strip() or "?"
 
 
-def run(root: Path, src: Path, out: Path, scores: bool) -> float:
-    """Wall seconds of one ``rdnet restore`` by the code in ``root``."""
-    code = ("import sys, rdnet; from pathlib import Path; "
-            f"assert Path(rdnet.__file__).resolve().is_relative_to({str(root.resolve())!r}), rdnet.__file__; "
-            "from rdnet.cli import main; "
-            f"sys.exit(main(['restore', {str(src)!r}, {str(out)!r}, '--method', 'rdnet', '--no-progress', "
-            f"'--set', 'restore.scores={'true' if scores else 'false'}']))")
-    env = {**os.environ, "PYTHONPATH": str(root)}
-    t = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-c", code], cwd=root, env=env, capture_output=True, text=True)
-    wall = time.perf_counter() - t
-    if proc.returncode != 0:
-        raise RuntimeError(f"{root}: {proc.stderr.strip().splitlines()[-1:]}")
-    return wall
+def _wall(row: dict) -> float:
+    """The wall seconds of a :func:`bench_restore.run_one` row (its error raised)."""
+    if "error" in row:
+        raise RuntimeError(f"rdnet restore failed: {row['error']}")
+    return row["wall_s"]
 
 
 def main() -> None:
@@ -74,6 +64,8 @@ def main() -> None:
     steady = args.recording == "davis346_road"
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
+        for name in codes:
+            (work / name).mkdir()
         if steady:
             files = {k: repeated_h5(RECORDINGS[args.recording], k, work / f"x{k}.h5") for k in (1, args.copies)}
             span_s = files[1]["span_us"] * 1e-6
@@ -88,7 +80,8 @@ def main() -> None:
         for r in range(args.rounds):
             row = {"load_average_1min_before": os.getloadavg()[0]}
             for name, root in codes.items():
-                walls = {k: run(root, f, work / f"{name}_x{k}.h5", not args.no_scores) for k, f in inputs.items()}
+                walls = {k: _wall(run_one(f, "rdnet", work / name, not args.no_scores, root=root))
+                         for k, f in inputs.items()}
                 if steady:
                     per_s = (walls[args.copies] - walls[1]) / ((args.copies - 1) * span_s)
                 else:
@@ -100,7 +93,7 @@ def main() -> None:
                          "steady" if steady else "end-to-end", 1.0 / per_s)
             rounds.append(row)
         from rdnet.events.io.hdf5 import read_events
-        a, b = (read_events(work / f"{n}_x1.h5").array for n in codes)
+        a, b = (read_events(work / n / f"{inputs[1].stem}_rdnet.h5").array for n in codes)
         same = bool(a.shape == b.shape and np.array_equal(a, b))
 
     def summary(name):

@@ -359,25 +359,25 @@ def _guess(obj: Objective, values: dict, effect: Effect, noise_reset: bool = Tru
         v[p.key] = float(np.clip(r, p.lo, p.hi))
         return v
     if effect.name == "hot_pixels":
-        at = _hot_pixel_mask(obj, values)
+        sim_all = obj.stats_all(values)
+        at = _hot_pixel_mask(sim_all, obj.real_all)
         if at is None:
             return None
-        sim = obj.stats_all(values)["net_rate"].ravel()
-        real = obj.real_all["net_rate"].ravel()
-        hot = real[at]
+        hot = obj.real_all["net_rate"].ravel()[at]
         v = dict(values)
-        v["hot_pixel_fraction"] = float(np.clip(hot.size / real.size, 0.0005, 0.05))
-        v["hot_pixel_hz"] = float(np.clip(np.median(hot) - float(np.mean(sim)), 3.0, 3000.0))
+        v["hot_pixel_fraction"] = float(np.clip(hot.size / at.size, 0.0005, 0.05))
+        v["hot_pixel_hz"] = float(np.clip(np.median(hot) - float(np.mean(sim_all["net_rate"])), 3.0, 3000.0))
         v.update(shape_estimate(obj, values, effect, at))
         return v
     return None
 
 
-def _hot_pixel_mask(obj: Objective, values: dict) -> np.ndarray | None:
-    """The sampled pixels whose net ON - OFF rate in the recording exceeds any simulated
-    one (hot pixels; busy scene pixels dropped: hot pixels share one rate), or None."""
-    sim = obj.stats_all(values)["net_rate"].ravel()
-    real = obj.real_all["net_rate"].ravel()
+def _hot_pixel_mask(sim_all: dict, real_all: dict) -> np.ndarray | None:
+    """The sampled pixels whose net ON - OFF rate in the recording (``real_all``, whole-window
+    statistics) exceeds any simulated one (``sim_all``) (hot pixels; busy scene pixels
+    dropped: hot pixels share one rate), or None."""
+    sim = sim_all["net_rate"].ravel()
+    real = real_all["net_rate"].ravel()
     top = np.sort(sim)[-max(1, sim.size // 1000):]
     thresh = 2.0 * float(top.mean()) + 1.0
     cut = thresh
@@ -401,10 +401,10 @@ def shape_estimate(obj: Objective, values: dict, effect: Effect, at: np.ndarray 
     share strictly between 0 and 1). ``at``: the hot-pixel mask when already found."""
     if effect.name != "hot_pixels":
         return {}
-    at = _hot_pixel_mask(obj, values) if at is None else at
+    sim, real = obj.stats_all(values), obj.real_all
+    at = _hot_pixel_mask(sim, real) if at is None else at
     if at is None:
         return {}
-    sim, real = obj.stats_all(values), obj.real_all
     secs = float(real["seconds"])
     n = np.maximum((real["pixel_rate"] - sim["pixel_rate"]).ravel()[at] * secs, 0.0)
     on = np.clip((real["pixel_on_rate"] - sim["pixel_on_rate"]).ravel()[at] * secs, 0.0, n)

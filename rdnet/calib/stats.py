@@ -408,4 +408,3 @@ def discrepancy(sim: dict, real: dict, ctx: CalibContext,
     weights = STATISTICS if weights is None else weights
     d = distances(sim, real, ctx)
     return float(sum(weights.get(k, 0.0) * v for k, v in d.items())), d
-

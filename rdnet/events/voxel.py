@@ -58,9 +58,7 @@ def voxel_entries(events: Events, bins: int, t0_us: int, duration_us: int, *,
     than voxels (``rdnet restore`` on a DAVIS346: about 1,300 events in 1.8 million
     voxels)."""
     shape, terms = _voxel_terms(events, bins, t0_us, duration_us, mode, polarity)
-    index = np.concatenate([i for i, _ in terms])
-    weights = np.concatenate([w for _, w in terms])
-    pos, inverse = np.unique(index, return_inverse=True)
+    pos, inverse = np.unique(np.concatenate([i for i, _ in terms]), return_inverse=True)
     # one bincount per term, added up: the sums voxel_grid forms, in the same order
     values, start = np.zeros(pos.size), 0
     for i, w in terms:

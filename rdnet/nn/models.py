@@ -161,9 +161,9 @@ class RestoreNet(nn.Module):
         lo_on, lo_off = (offset_threshold(logit_min, g) for g in (OCCUPANCY_GAIN, -OCCUPANCY_GAIN))
         if isinstance(counts, SparseVoxels):
             keep = o >= lo_off
-            c, y, x = (torch.as_tensor(a, device=o.device) for a in counts.coords())
-            occupied = torch.as_tensor(counts.values > 0, device=o.device)
-            keep[0, c[occupied], y[occupied], x[occupied]] = o[0, c[occupied], y[occupied], x[occupied]] >= lo_on
+            occupied = counts.values > 0
+            at = tuple(torch.as_tensor(a[occupied], device=o.device) for a in counts.coords())
+            keep[(0, *at)] = o[(0, *at)] >= lo_on
 
             def count_at(b, c, y, x):
                 return torch.as_tensor(counts.at(c, y, x), device=feats.device)
