@@ -40,6 +40,8 @@ from rdnet.sim.settings import DegradeConfig
 log = logging.getLogger(__name__)
 
 DEGRADE_KEYS = tuple(f.name for f in fields(DegradeConfig))
+#: degrade keys added after pairs files were written: files without them read the default
+LATER_DEGRADE_KEYS = {"cutoff_floor": DegradeConfig.cutoff_floor}
 ARRAY_KEYS = ("blurry", "sharp", "voxel_undegraded", "voxel_degraded", "sequence", "t0_us",
               "duration_us", "level")
 #: optional per-polarity count voxels (written by :func:`make_samples`; older files lack them).
@@ -270,7 +272,7 @@ class PairsFile:
                     if k not in f:
                         raise FormatError(self.path, k, "missing dataset")
                 for k in DEGRADE_KEYS:
-                    if f"degrade/{k}" not in f:
+                    if f"degrade/{k}" not in f and k not in LATER_DEGRADE_KEYS:
                         raise FormatError(self.path, f"degrade/{k}", "missing dataset")
                 self.attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
                 self._len = int(f["blurry"].shape[0])
@@ -300,7 +302,8 @@ class PairsFile:
             raise IndexError(f"sample {i} out of range (0..{self._len - 1})")
         f = self._file()
         out = {k: f[k][i] for k in self.keys}
-        out["degrade"] = {k: float(f[f"degrade/{k}"][i]) for k in DEGRADE_KEYS}
+        out["degrade"] = {k: float(f[f"degrade/{k}"][i]) if f"degrade/{k}" in f else LATER_DEGRADE_KEYS[k]
+                          for k in DEGRADE_KEYS}
         return out
 
     def column(self, name: str) -> np.ndarray:

@@ -23,7 +23,8 @@ Effects and the sources they follow:
   ``theta_on / theta_off = r * theta_on0 / theta_off0``.
 * ``cutoff_hz`` f0 (v2e Sec. 3.2, ``emulator_utils.low_pass_filter``): first-order low-pass
   of the log intensity whose cutoff is proportional to intensity,
-  ``f(I) = f0 (I + floor) / (1 + floor)`` with ``floor`` = :data:`CUTOFF_FLOOR` (v2e's
+  ``f(I) = f0 (I + floor) / (1 + floor)`` with ``floor`` = ``cutoff_floor``, the
+  photoreceptor's dark current relative to full scale (default :data:`CUTOFF_FLOOR`, v2e's
   ``(I255 + 20) / 275``), so dark pixels are slower; discretised exactly for a step dt:
   ``lp <- lp + alpha (L - lp)``, ``alpha = 1 - exp(-2 pi f(I) dt)``.
 * ``refractory_us`` R (v2e Sec. 3.4; DVS-Voltmeter, Lin et al., ECCV 2022): after an event
@@ -91,8 +92,9 @@ from rdnet.sim.settings import DegradeConfig, SensorConfig
 
 #: Lower clip of mismatched thresholds in log units (v2e).
 MIN_THRESHOLD = 0.01
-#: Intensity floor of the photoreceptor bandwidth, relative to full scale (v2e: 20/255).
-CUTOFF_FLOOR = 20.0 / 255.0
+#: Default intensity floor of the photoreceptor bandwidth, relative to full scale (v2e:
+#: 20/255; ``degrade.cutoff_floor``).
+CUTOFF_FLOOR = DegradeConfig.cutoff_floor
 #: Truncation of the Gaussian timestamp jitter, in standard deviations.
 JITTER_TRUNCATE = 4.0
 #: Most entries of the jitter alias table (8 jitter_us + 2); wider jitter draws normals.
@@ -174,10 +176,11 @@ def fit_hot_pixel_polarity(on_counts: np.ndarray, counts: np.ndarray) -> tuple[f
 # --- in-kernel coefficients ------------------------------------------------------------
 
 def lowpass_coef(degrade: DegradeConfig) -> float:
-    """``c`` such that ``alpha = 1 - exp(-c dt_us (I + CUTOFF_FLOOR))`` (0 = filter off)."""
+    """``c`` such that ``alpha = 1 - exp(-c dt_us (I + floor))`` (0 = filter off; ``floor``:
+    ``degrade.cutoff_floor``)."""
     if degrade.cutoff_hz <= 0:
         return 0.0
-    return 2.0 * math.pi * degrade.cutoff_hz * 1e-6 / (1.0 + CUTOFF_FLOOR)
+    return 2.0 * math.pi * degrade.cutoff_hz * 1e-6 / (1.0 + degrade.cutoff_floor)
 
 
 def shot_rate_coefs(degrade: DegradeConfig) -> tuple[float, float]:

@@ -633,6 +633,7 @@ class Sensor:
         self._phase = effects.leak_phase(H, W, degrade, rng)
         self.hot_idx, self.hot_on = effects.hot_pixels(H, W, degrade, rng)
         self._lp_coef = effects.lowpass_coef(degrade)
+        self._lp_floor = np.float32(degrade.cutoff_floor)
         self._shot_a, self._shot_b = effects.shot_rate_coefs(degrade)
         self._shift_lo, self._shift_hi = effects.timing_shift_bounds(degrade)
         self._timing = degrade.jitter_us > 0 or degrade.latency_us > 0
@@ -775,7 +776,7 @@ class Sensor:
             if use_lp:
                 # e = exp(-c dt_k (I + floor))
                 de = decay[a:b]
-                np.add(lin[a:b], np.float32(effects.CUTOFF_FLOOR), out=de, casting="same_kind")
+                np.add(lin[a:b], self._lp_floor, out=de, casting="same_kind")
                 np.multiply(de, c[a:b], out=de)
                 np.exp(de, out=de)
             return float(mn)

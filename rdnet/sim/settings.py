@@ -65,6 +65,10 @@ class DegradeConfig:
                           (v2e ``SHOT_NOISE_INTEN_FACTOR`` = 0.25); linear in between.
     ``leak_spread_decades``  std of log10 of the per-pixel leak rate (v2e
                           ``noise_rate_cov_decades`` = 0.1).
+    ``cutoff_floor``      the photoreceptor's dark current as a fraction of full scale: the
+                          bandwidth ``cutoff_hz (I + floor) / (1 + floor)`` does not fall below
+                          ``cutoff_hz floor / (1 + floor)`` in the dark (v2e: 20/255; a circuit
+                          whose dark current is also its log offset has ``sensor.log_eps``).
     ``hot_pixel_on_fraction``  mean share of ON events among the hot pixels' events (0.5:
                           balanced; real hot pixels lean ON: 0.69 on a DVXplorer recording,
                           README "Hot-pixel polarity").
@@ -88,6 +92,7 @@ class DegradeConfig:
     latency_us: float = 0.0           # constant timestamp delay
     shot_noise_bright_factor: float = 0.25  # shot-noise rate at I=1 / rate at I=0
     leak_spread_decades: float = 0.1  # std of log10(per-pixel leak rate)
+    cutoff_floor: float = 20.0 / 255.0  # photoreceptor dark current / full scale (bandwidth floor, v2e)
     hot_pixel_on_fraction: float = 0.5  # mean ON share of the hot pixels' events
     hot_pixel_polarity_concentration: float = 0.0  # Beta concentration of the per-pixel ON share (0: one polarity each)
 

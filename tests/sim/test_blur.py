@@ -148,3 +148,22 @@ def test_per_polarity_voxels_count_on_and_off_and_old_files_stay_readable(tmp_pa
     part = dict(old, voxel_degraded_on=s["voxel_degraded_on"])
     with pytest.raises(ValidationError, match="incomplete"):
         write_pairs(tmp_path / "part.h5", [part], attrs)
+
+
+def test_files_written_before_the_cutoff_floor_read_its_default(tmp_path):
+    frames, ideal, degr = _data()
+    s = make_samples(frames, ideal, degr, BlurConfig(), 4, np.random.default_rng(0),
+                     degrade=DegradeConfig(cutoff_hz=50.0, cutoff_floor=0.02))
+    attrs = {"bins": 4, "voxel_mode": "hard", "channels": 1, "split": "train"}
+    path = write_pairs(tmp_path / "new.h5", [s], attrs)
+    assert read_pairs(path)[0]["degrade"]["cutoff_floor"] == 0.02
+    with h5py.File(path, "a") as f:                  # as a file from before the key existed
+        del f["degrade/cutoff_floor"]
+        del f["degrade/leak_hz"]
+    with pytest.raises(FormatError, match="degrade/leak_hz"):     # other keys stay required
+        read_pairs(path)
+    path = write_pairs(tmp_path / "old.h5", [s], attrs)
+    with h5py.File(path, "a") as f:
+        del f["degrade/cutoff_floor"]
+    row = read_pairs(path)[0]["degrade"]
+    assert row["cutoff_floor"] == DegradeConfig().cutoff_floor and row["cutoff_hz"] == 50.0

@@ -50,7 +50,8 @@ def test_onoff_ratio_keeps_geometric_mean():
     assert np.all(n_on == math.floor(20 / math.sqrt(2))) and np.all(n_off == math.floor(20 * math.sqrt(2)))
 
 
-def test_cutoff_delays_events_more_in_the_dark_and_keeps_counts():
+@pytest.mark.parametrize("floor", [effects.CUTOFF_FLOOR, 0.01])
+def test_cutoff_delays_events_more_in_the_dark_and_keeps_counts(floor):
     eps, thr, f0, dt = 0.01, 0.2, 200.0, 25
     sensor = SensorConfig(thr, thr, eps)
     levels = np.array([0.05, 0.8])             # dark, bright pixel (after a x e^1 step)
@@ -61,18 +62,30 @@ def test_cutoff_delays_events_more_in_the_dark_and_keeps_counts():
     frames[1:, 0] = levels
     t = np.arange(n, dtype=np.int64) * dt
     ideal, _ = run(frames, t, None, sensor=sensor)
-    ev, _ = run(frames, t, DegradeConfig(cutoff_hz=f0), sensor=sensor)
+    ev, _ = run(frames, t, DegradeConfig(cutoff_hz=f0, cutoff_floor=floor), sensor=sensor)
     assert np.array_equal(ev.count_per_pixel(), ideal.count_per_pixel())
     # analytic crossing times of lp = Lb + (La - Lb) exp(-2 pi f(I) t)
     for x, lvl in enumerate(levels):
         La, Lb = math.log(before[x] + eps), math.log(lvl + eps)
         k = np.arange(1, int((Lb - La) / thr + 1e-9) + 1)
-        f = f0 * (lvl + effects.CUTOFF_FLOOR) / (1 + effects.CUTOFF_FLOOR)
+        f = f0 * (lvl + floor) / (1 + floor)
         expect = -np.log(1 - k * thr / (Lb - La)) / (2 * math.pi * f) * 1e6
         got = ev.t[ev.x == x]
         assert np.abs(got - expect).max() < dt      # within one (linearly interpolated) step
     delay = [ev.t[ev.x == x].mean() for x in range(2)]
     assert delay[0] > 3 * delay[1]
+
+
+def test_cutoff_floor_default_is_v2e_and_a_lower_floor_slows_only_the_dark():
+    assert DegradeConfig().cutoff_floor == effects.CUTOFF_FLOOR == 20.0 / 255.0
+    c = effects.lowpass_coef(DegradeConfig(cutoff_hz=100.0, cutoff_floor=0.01))
+    assert c == pytest.approx(2 * math.pi * 100.0 * 1e-6 / 1.01)
+    # the cutoff at I = 1 is cutoff_hz whatever the floor (the floor moves the dark end only)
+    for b in (0.01, effects.CUTOFF_FLOOR):
+        assert effects.lowpass_coef(DegradeConfig(cutoff_hz=100.0, cutoff_floor=b)) * (1 + b) == \
+            pytest.approx(2 * math.pi * 100.0 * 1e-6)
+    with pytest.raises(ConfigError, match="degrade.cutoff_floor"):
+        DegradeConfig(cutoff_floor=-0.1)
 
 
 def fast_ramp(h=16, w=16, n_thr=40, steps=20, dt=500):
