@@ -204,7 +204,7 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
     effects = []
     for eff in absent_effects(degrade):
         c = fit.candidates.get(eff.name)
-        params = {p.key: float(c.values.get(p.key, getattr(degrade, p.key) if p in eff.shape else 0.0))
+        params = {p.key: float(c.values.get(p.key, getattr(degrade, p.key) if p in eff.shape + eff.tuning else 0.0))
                   for p in eff.fitted} if c else {}
         effects.append({
             "name": eff.name,

@@ -28,7 +28,10 @@ class Effect:
     statistic that reveals it and a one-line description of the physics. ``shape``:
     parameters that come with the effect but do not switch it on or off (the hot pixels' ON
     share): read off the recording when the effect is fitted
-    (:func:`rdnet.calib.fit.shape_estimate`), not searched; [lo, hi] is their clip range."""
+    (:func:`rdnet.calib.fit.shape_estimate`), not searched; [lo, hi] is their clip range.
+    ``tuning``: parameters that come with the effect and do not switch it on or off either,
+    but are searched with it over [lo, hi] (the bandwidth's dark-current floor: how much
+    slower dark pixels are is the sensor's, not a constant of the model)."""
 
     name: str
     params: tuple[Param, ...]
@@ -36,6 +39,7 @@ class Effect:
     physics: str
     changes_count: bool = False     # removes or adds signal events: thresholds can hide it
     shape: tuple[Param, ...] = ()
+    tuning: tuple[Param, ...] = ()
 
     @property
     def keys(self) -> tuple[str, ...]:
@@ -44,8 +48,8 @@ class Effect:
 
     @property
     def fitted(self) -> tuple[Param, ...]:
-        """Every parameter fitted with the effect: its keys, then its shape."""
-        return self.params + self.shape
+        """Every parameter fitted with the effect: its keys, its tuning, then its shape."""
+        return self.params + self.tuning + self.shape
 
     def present(self, degrade: DegradeConfig) -> bool:
         return any(getattr(degrade, k) != OFF.get(k, 0.0) for k in self.keys)
@@ -63,7 +67,8 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
     Effect("onoff_asymmetry", (Param("onoff_ratio", 0.4, 2.5, "off"),), "on_fraction",
            "ON and OFF contrast thresholds differ", True),
     Effect("bandwidth", (Param("cutoff_hz", 1.0, 3000.0, "hi"),), "rate_vs_intensity",
-           "photoreceptor low-pass filter whose cutoff falls with intensity (slow dark pixels)", True),
+           "photoreceptor low-pass filter whose cutoff falls with intensity (slow dark pixels)", True,
+           tuning=(Param("cutoff_floor", 0.003, 0.3),)),
     Effect("refractory_period", (Param("refractory_us", 20.0, 50000.0),), "iei",
            "dead time after each event of a pixel", True),
     Effect("shot_noise", (Param("shot_noise_hz", 1e-4, 30.0),), "static_rate",

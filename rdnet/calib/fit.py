@@ -214,10 +214,13 @@ class Objective:
 
 # --- 1-D searches in log scale ----------------------------------------------------------
 
-def golden(f: Evaluator, values: dict, key: str, lo: float, hi: float, steps: int) -> dict:
+def golden(f: Evaluator, values: dict, key: str, lo: float, hi: float, steps: int,
+           move: Callable[[dict, float], dict] | None = None) -> dict:
     """Golden-section search of ``key`` in [lo, hi] (log scale) minimising the mean fit
     discrepancy of the evaluator ``f`` (``steps`` evaluations); returns the best values
-    seen, the start included (an evaluator may move other keys, e.g. the thresholds)."""
+    seen, the start included (an evaluator may move other keys, e.g. the thresholds).
+    ``move(values, x)``: the values at coordinate ``x`` when the search runs along a
+    coordinate that moves several keys (``key`` is then only a label; default: ``key = x``)."""
     start = f(values)
     best, best_f = dict(start.values), start.fit_mean
     if steps <= 0 or not lo < hi:
@@ -228,8 +231,11 @@ def golden(f: Evaluator, values: dict, key: str, lo: float, hi: float, steps: in
 
     def g(u):
         nonlocal best, best_f
-        v = dict(values)
-        v[key] = math.exp(u)
+        if move is None:
+            v = dict(values)
+            v[key] = math.exp(u)
+        else:
+            v = move(values, math.exp(u))
         ev = f(v)
         r = ev.fit_mean
         if r < best_f:
@@ -603,6 +609,7 @@ def fit_effect(obj: Objective, values: dict, effect: Effect, screened: list[Eval
     i = int(np.argmin([e.fit_mean for e in screened]))
     v = dict(screened[i].values)
     v.update(shape_estimate(obj, values, effect))   # else the guess's, or the declared value
+    tuning = []
     if grid is not None:
         p = effect.params[0]
         i = int(keep[i])
@@ -610,17 +617,88 @@ def fit_effect(obj: Objective, values: dict, effect: Effect, screened: list[Eval
         v = golden(f, v, p.key, lo, hi, cfg.refine_steps)
         for q in effect.params[1:]:
             v = golden(f, v, q.key, q.lo, q.hi, cfg.refine_steps)
-    elif refit:
-        v = refine(f, v, list(effect.params), rounds=1, steps=max(2, cfg.refine_steps - 1), factor=1.6)
+        v, tuning = _fit_tuning(f, obj, v, effect)
+    elif refit:     # from the previous fit, its tuning included when it was kept
+        tuning = [q for q in effect.tuning if q.key in v]
+        v = refine(f, v, list(effect.params) + tuning, rounds=1, steps=max(2, cfg.refine_steps - 1), factor=1.6)
     else:
         v = refine(f, v, list(effect.params), rounds=1, steps=cfg.refine_steps, factor=3.0)
+        v, tuning = _fit_tuning(f, obj, v, effect)
     present = present_params(obj)
     if not thresholds:          # an additive effect on the final sample: no pixel-circuit reruns
         present = [p for p in present if additive(p)]
     if present:
         v = refine(obj, v, present, rounds=1, steps=cfg.refine_steps, factor=8.0)
-    return refine(obj, v, ([THRESHOLD_SCALE] if thresholds else []) + list(effect.params) + present, rounds=1,
-                  steps=max(2, cfg.refine_steps - 2), factor=1.5)
+    return refine(obj, v, ([THRESHOLD_SCALE] if thresholds else []) + list(effect.params) + tuning + present,
+                  rounds=1, steps=max(2, cfg.refine_steps - 2), factor=1.5)
+
+
+def _fit_tuning(f: Evaluator, obj: Objective, values: dict, effect: Effect) -> tuple[dict, list[Param]]:
+    """The effect's tuning parameters (:class:`rdnet.calib.effects.Effect`) on top of its
+    own parameter fitted at their declared values. The two trade off against each other,
+    so they are searched in coordinates that do not (:func:`_bandwidth_coordinates`), two
+    rounds of golden sections (the second, narrower, only when the first already fits
+    clearly better); the declared tuning gets two golden sections of the own parameter alone
+    first. The tuned fit is kept only when it lowers the fit
+    discrepancy by more than ``calibrate.min_relative_gain`` of the declared one's: one
+    more free parameter fits noise too, and where the data do not tell the tuning apart
+    the declared value stays. Returns the values and the tuning parameters kept free (for
+    the final refinement)."""
+    if not effect.tuning:
+        return values, []
+    cfg = obj.ctx.cfg
+    steps = cfg.refine_steps
+    p = effect.params[0]
+    values = golden(f, values, p.key, values[p.key] / 1.6, values[p.key] * 1.6, steps)
+    values = golden(f, values, p.key, values[p.key] / 1.3, values[p.key] * 1.3, steps - 1)
+    v = values
+    before = f(values).fit_mean
+    for wide in (3.0, 1.6):
+        for move, at in _bandwidth_coordinates(obj, effect):
+            x = at(v)
+            v = golden(f, v, "", x / wide, x * wide, steps, move=move)
+        after = f(v).fit_mean
+        if not after < before * (1.0 - cfg.min_relative_gain):
+            break               # not clearly better after the wide round: the narrow one is not run
+    else:
+        log.debug("%s: tuning %s kept (fit %.4f -> %.4f)", effect.name, _fmt(v), before, after)
+        return v, list(effect.tuning)
+    return values, []
+
+
+def _bandwidth_coordinates(obj: Objective, effect: Effect) -> list[tuple[Callable, Callable]]:
+    """Search coordinates of the bandwidth (``cutoff_hz`` f0, ``cutoff_floor`` b; cutoff
+    ``f(I) = f0 (I + b) / (1 + b)``): the cutoffs at the upper edge of the darkest
+    intensity bin (``I_d``) and at the lower edge of the brightest (``I_b``), each moved
+    with the other held, as ``(move(values, x), value_of(values))`` pairs. In (f0, b) the
+    fit has a long ridge (a lower floor and a higher cutoff give the dark pixels the same
+    lag), on which a search of one parameter at a time stalls; the two cutoffs each act
+    on one end of the intensity range. A floor outside its range is clipped there."""
+    if effect.name != "bandwidth":
+        raise ValueError(f"no tuning coordinates for {effect.name}")
+    main, q = effect.params[0], effect.tuning[0]
+    ctx = obj.ctx
+    e = np.exp(ctx.intensity_edges) - ctx.log_eps
+    i_d, i_b = max(float(e[1]), 0.0), max(float(e[-2]), 0.0)
+    if not i_b > i_d:
+        i_d, i_b = 0.0, 1.0
+
+    def pair(v: dict) -> tuple[float, float]:
+        f0 = float(v[main.key])
+        b = float(v.get(q.key, getattr(obj.degrade, q.key)))
+        return f0 * (i_d + b) / (1.0 + b), f0 * (i_b + b) / (1.0 + b)
+
+    def values_of(v: dict, fd: float, fb: float) -> dict:
+        k = (fb - fd) / (i_b - i_d)                  # f(I) = k (I + b)
+        b = float(np.clip(fd / k - i_d, q.lo, q.hi)) if k > 0 else q.hi
+        k = fb / (i_b + b)                           # keeps the bright cutoff when clipped
+        out = dict(v)
+        out[main.key] = float(np.clip(k * (1.0 + b), main.lo, main.hi))
+        out[q.key] = b
+        return out
+
+    return [(lambda v, x: values_of(v, x, pair(v)[1]), lambda v: pair(v)[0]),
+            (lambda v, x: values_of(v, pair(v)[0], x), lambda v: pair(v)[1])]
 
 
 @dataclass

@@ -109,8 +109,9 @@ def from_degrade(sensor, degrade, **extra) -> CircuitParams:
     """The circuit with the values of an rdnet ``sensor``/``degrade`` pair where the
     meaning carries over: thresholds (``onoff_ratio`` applied keeping their geometric
     mean), ``log_eps`` -> ``i_dark``, ``cutoff_hz`` -> ``photoreceptor_hz`` (both the
-    cutoff at I = 1, falling with intensity: rdnet's with a floor of 20/255 of full scale,
-    this one with ``i_dark``), and :data:`DEGRADE_EQUIVALENT`. ``sample_period_us`` has
+    cutoff at I = 1, falling with intensity: rdnet's with the floor ``cutoff_floor``, 20/255
+    of full scale by default, this one with its dark current ``i_dark``; so rdnet's
+    ``cutoff_floor`` has no separate counterpart here), and :data:`DEGRADE_EQUIVALENT`. ``sample_period_us`` has
     no counterpart (rejected when on). ``extra``: CircuitParams fields to set."""
     if getattr(degrade, "sample_period_us", 0.0):
         raise ConfigError("degrade.sample_period_us", "the circuit generator has no readout period")
