@@ -36,7 +36,7 @@ from rdnet.calib.scene import SceneSpec
 from rdnet.config import load_params, section, to_dict
 from rdnet.events.io import load as load_recording
 from rdnet.sim.interpolate import InterpolateConfig
-from rdnet.sim.settings import DegradeConfig, SensorConfig
+from rdnet.sim.settings import EFFECT_KEYS, DegradeConfig, SensorConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT / "data" / "real" / "davis346_road" / "davis346.aedat4"
@@ -91,8 +91,8 @@ def main() -> None:
 
     if args.real.is_file():
         # as the calibrate_real stage: params.yaml sensor / interpolate, every degrade effect off
-        off = {f.name: 0.0 for f in dataclasses.fields(DegradeConfig)
-               if f.name not in ("onoff_ratio", "shot_noise_bright_factor", "leak_spread_decades")}
+        # (the shape keys kept as params.yaml has them)
+        off = {k: 0.0 for k in EFFECT_KEYS if k != "onoff_ratio"}
         base = dataclasses.replace(section(params, "degrade"), onoff_ratio=1.0, **off)
         real_sensor, real_interp = section(params, "sensor"), section(params, "interpolate")
 
