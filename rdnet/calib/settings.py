@@ -31,6 +31,8 @@ class CalibrateConfig:
     seeds) and above ``min_relative_gain``, is named even when its total gain is within
     ``significance`` seed spreads: the total's seed spread also carries the terms of the
     structural mismatch that the effect does not touch (:func:`rdnet.calib.fit.score`).
+    An effect's tuning parameter (the bandwidth's dark-current floor) leaves its declared
+    value only when that lowers the fit discrepancy by more than ``min_relative_gain`` too.
     ``max_effects``: forward selection stops after this many.
     ``search_points``: grid points of the screen of an effect without a data-driven first
     guess (log-spaced over its range; its weak end is not simulated); ``refine_steps``:
