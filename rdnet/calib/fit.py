@@ -639,10 +639,11 @@ def _fit_tuning(f: Evaluator, obj: Objective, values: dict, effect: Effect) -> t
     so they are searched in coordinates that do not (:func:`_bandwidth_coordinates`), two
     rounds of golden sections (the second, narrower, only when the first already fits
     clearly better); the declared tuning gets two golden sections of the own parameter alone
-    first. The tuned fit is kept only when it lowers the fit
-    discrepancy by more than ``calibrate.min_relative_gain`` of the declared one's: one
-    more free parameter fits noise too, and where the data do not tell the tuning apart
-    the declared value stays. Returns the values and the tuning parameters kept free (for
+    first. The tuned fit is kept only when it lowers the fit discrepancy, and the held-out
+    discrepancy of the same simulations, each by more than ``calibrate.min_relative_gain``
+    of the declared one's: one more free parameter fits noise (and nuisance, such as the
+    frame interpolation's error) too, and where the data do not tell the tuning apart the
+    declared value stays. Returns the values and the tuning parameters kept free (for
     the final refinement)."""
     if not effect.tuning:
         return values, []
@@ -652,17 +653,20 @@ def _fit_tuning(f: Evaluator, obj: Objective, values: dict, effect: Effect) -> t
     values = golden(f, values, p.key, values[p.key] / 1.6, values[p.key] * 1.6, steps)
     values = golden(f, values, p.key, values[p.key] / 1.3, values[p.key] * 1.3, steps - 1)
     v = values
-    before = f(values).fit_mean
+    before = f(values)
     for wide in (3.0, 1.6):
         for move, at in _bandwidth_coordinates(obj, effect):
             x = at(v)
             v = golden(f, v, "", x / wide, x * wide, steps, move=move)
-        after = f(v).fit_mean
-        if not after < before * (1.0 - cfg.min_relative_gain):
+        after = f(v)
+        if not after.fit_mean < before.fit_mean * (1.0 - cfg.min_relative_gain):
             break               # not clearly better after the wide round: the narrow one is not run
     else:
-        log.debug("%s: tuning %s kept (fit %.4f -> %.4f)", effect.name, _fmt(v), before, after)
-        return v, list(effect.tuning)
+        # out of sample too: the held-out segments of the same simulations
+        if after.held_mean < before.held_mean * (1.0 - cfg.min_relative_gain):
+            log.debug("%s: tuning %s kept (fit %.4f -> %.4f, held-out %.4f -> %.4f)", effect.name, _fmt(v),
+                      before.fit_mean, after.fit_mean, before.held_mean, after.held_mean)
+            return v, list(effect.tuning)
     return values, []
 
 

@@ -54,15 +54,16 @@ def test_a_floor_outside_its_range_is_clipped_keeping_the_bright_cutoff():
     assert cutoff(w, I_B) == pytest.approx(cutoff(v, I_B))
 
 
-def landscape(target: dict, *, floor_matters: bool = True):
+def landscape(target: dict, *, floor_matters: bool = True, held: float = 1.0):
     """A fit discrepancy that is zero at ``target``: squared log errors of the cutoffs at
-    both ends (or of the cutoff at I = 1 only)."""
+    both ends (or of the cutoff at I = 1 only); the held-out discrepancy moves ``held``
+    times as much."""
     def f(v):
         if floor_matters:
             r = sum(math.log(cutoff(v, i) / cutoff(target, i)) ** 2 for i in (I_D, I_B))
         else:
             r = math.log(v["cutoff_hz"] / target["cutoff_hz"]) ** 2
-        return SimpleNamespace(values=dict(v), fit_mean=1.0 + r)
+        return SimpleNamespace(values=dict(v), fit_mean=1.0 + r, held_mean=1.0 + held * r)
     return f
 
 
@@ -85,6 +86,9 @@ def test_the_declared_floor_stays_when_a_free_one_does_not_fit_clearly_better():
     assert v["cutoff_hz"] == pytest.approx(100.0, rel=0.1)      # the own parameter is still refined
     # a real but small improvement (below calibrate.min_relative_gain) keeps it declared too
     v, free = _fit_tuning(landscape(truth), fake_objective(min_relative_gain=0.99), {"cutoff_hz": 60.0}, BW)
+    assert free == [] and "cutoff_floor" not in v
+    # a floor that fits the fit segments but not the held-out ones (nuisance) stays declared
+    v, free = _fit_tuning(landscape(truth, held=0.0), fake_objective(), {"cutoff_hz": 60.0}, BW)
     assert free == [] and "cutoff_floor" not in v
 
 
