@@ -82,9 +82,11 @@ def modal_set(runs: list[dict]) -> tuple[list[str], int]:
     return [], 0
 
 
-def run_seed(seed: int, recording: Path, params: Path, sets: list[str], out: Path) -> dict:
+def run_seed(seed: int, recording: Path, params: Path, sets: list[str], out: Path, plots: bool = False) -> dict:
+    """``rdnet calibrate`` of ``recording`` with ``--seed seed`` in a child process (as a user
+    runs it; ``plots``: with the report's figures): :func:`summarise_run` of its report."""
     cmd = [sys.executable, "-m", "rdnet.cli", "calibrate", str(recording), "--out", str(out),
-           "--params", str(params), "--seed", str(seed), "--no-plots"]
+           "--params", str(params), "--seed", str(seed)] + ([] if plots else ["--no-plots"])
     for s in sets:
         cmd += ["--set", s]
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
