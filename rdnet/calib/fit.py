@@ -71,7 +71,7 @@ from rdnet.calib.context import CalibContext
 from rdnet.calib.effects import EFFECTS, OFF, THRESHOLD_SCALE, Effect, Param, absent_effects, apply, present_effects
 from rdnet.calib.engine import ADDITIVE_KEYS, Engine
 from rdnet.events.core import Events
-from rdnet.sim.effects import fit_hot_pixel_polarity, needs_rng
+from rdnet.sim.effects import cutoff_at, fit_hot_pixel_polarity, needs_rng
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
 log = logging.getLogger(__name__)
@@ -690,7 +690,7 @@ def _bandwidth_coordinates(obj: Objective, effect: Effect) -> list[tuple[Callabl
     def pair(v: dict) -> tuple[float, float]:
         f0 = float(v[main.key])
         b = float(v.get(q.key, getattr(obj.degrade, q.key)))
-        return f0 * (i_d + b) / (1.0 + b), f0 * (i_b + b) / (1.0 + b)
+        return cutoff_at(f0, b, i_d), cutoff_at(f0, b, i_b)
 
     def values_of(v: dict, fd: float, fb: float) -> dict:
         k = (fb - fd) / (i_b - i_d)                  # f(I) = k (I + b)

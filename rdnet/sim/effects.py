@@ -175,6 +175,12 @@ def fit_hot_pixel_polarity(on_counts: np.ndarray, counts: np.ndarray) -> tuple[f
 
 # --- in-kernel coefficients ------------------------------------------------------------
 
+def cutoff_at(cutoff_hz: float, floor: float, intensity):
+    """The photoreceptor cutoff (Hz) at linear ``intensity``: ``cutoff_hz (I + floor) / (1 +
+    floor)`` (``cutoff_hz`` is the cutoff at I = 1, ``floor`` = ``degrade.cutoff_floor``)."""
+    return cutoff_hz * (intensity + floor) / (1.0 + floor)
+
+
 def lowpass_coef(degrade: DegradeConfig) -> float:
     """``c`` such that ``alpha = 1 - exp(-c dt_us (I + floor))`` (0 = filter off; ``floor``:
     ``degrade.cutoff_floor``)."""

@@ -84,6 +84,8 @@ def test_cutoff_floor_default_is_v2e_and_a_lower_floor_slows_only_the_dark():
     for b in (0.01, effects.CUTOFF_FLOOR):
         assert effects.lowpass_coef(DegradeConfig(cutoff_hz=100.0, cutoff_floor=b)) * (1 + b) == \
             pytest.approx(2 * math.pi * 100.0 * 1e-6)
+    assert effects.cutoff_at(100.0, 0.01, 1.0) == pytest.approx(100.0)
+    assert effects.cutoff_at(100.0, 0.01, 0.0) == pytest.approx(100.0 * 0.01 / 1.01)
     with pytest.raises(ConfigError, match="degrade.cutoff_floor"):
         DegradeConfig(cutoff_floor=-0.1)
 
