@@ -142,6 +142,9 @@ def _f(v) -> str:
 
 # --- figures ----------------------------------------------------------------------------
 
+#: statistics drawn with a second y axis on the right (the still pixels' rate)
+TWIN_AXIS_STATISTICS = ("static_rate", "static_on_fraction", "on_fraction")
+
 def _plot_statistic(ax, name: str, cal: Calibration) -> None:
     ctx = cal.ctx
     series = (("real", cal.real_stats, "k"), ("base", cal.base_stats, "tab:red"),
@@ -173,24 +176,45 @@ def _plot_statistic(ax, name: str, cal: Calibration) -> None:
         ax.set_yscale("log")
         ax.set_xlabel("quantile band" + (f" {TAIL_BANDS}" if name == "pixel_tail" else ""))
         ax.set_ylabel("mean |ON - OFF| rate (Hz)" if name == "pixel_tail" else "mean rate (Hz)")
-    elif name in ("static_rate", "static_on_fraction", "on_fraction"):
+    elif name in TWIN_AXIS_STATISTICS:
+        # the still pixels' rate in Hz on its own (right) axis: a ratio to the recording's
+        # rate means nothing where its still pixels hardly fire (DAVIS346: none at all)
         w = 0.25
+        rate_ax = ax.twinx()
         for i, (lab, s, col) in enumerate(series):
-            vals = [float(s["static_rate"]) / max(float(cal.real_stats["static_rate"]), 1e-9),
-                    float(s["static_on_fraction"]), float(s["on_fraction"])]
-            ax.bar(np.arange(3) + (i - 1) * w, vals, w, color=col, label=lab)
-        ax.set_xticks(range(3), ["static rate\n(/ real)", "static ON\nfraction", "moving ON\nfraction"])
+            rate_ax.bar((i - 1) * w, float(s["static_rate"]), w, color=col)
+            ax.bar(np.arange(1, 3) + (i - 1) * w, [float(s["static_on_fraction"]), float(s["on_fraction"])], w,
+                   color=col, label=lab)
+        ax.set_xticks(range(3), ["static rate\n(right axis)", "static ON\nfraction", "moving ON\nfraction"])
+        ax.set_ylim(0, 1)
+        ax.set_ylabel("ON fraction")
+        rate_ax.set_ylabel("still pixels: events / pixel / s")
     else:  # rate_map
         ax.imshow(cal.real_stats["rate_map"], cmap="magma")
     ax.set_title(name)
     ax.legend(fontsize=7)
 
 
-def figures(cal: Calibration, out: Path) -> list[str]:
-    """Write the PNG figures; returns their file names."""
+#: Subplot margins of each figure, fixed: ``tight_layout`` measured every tick label's
+#: extent and cost about a third of the figures' time (0.35 of 1.1 s on DAVIS346).
+_MAPS_LAYOUT = dict(left=0.025, right=0.965, bottom=0.1, top=0.88, wspace=0.32)
+_STATS_LAYOUT = dict(left=0.06, right=0.95, bottom=0.09, top=0.95, wspace=0.36, hspace=0.34)
+_EFFECT_LAYOUT = dict(left=0.16, right=0.95, bottom=0.14, top=0.9)
+#: right margin of a panel with a second y axis on the right (:func:`_plot_statistic`)
+_TWIN_RIGHT = 0.86
+
+
+def import_pyplot():
+    """matplotlib.pyplot on the Agg backend (no display needed)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    return plt
+
+
+def figures(cal: Calibration, out: Path) -> list[str]:
+    """Write the PNG figures; returns their file names."""
+    plt = import_pyplot()
 
     names = []
     floor = 0.05 * max(float(cal.real_stats["rate"]), 1e-6)
@@ -212,14 +236,14 @@ def figures(cal: Calibration, out: Path) -> list[str]:
         im = ax.imshow(lr, cmap="coolwarm", vmin=-2, vmax=2)
         ax.set_title(f"log(sim {t} / real)")
         fig.colorbar(im, ax=ax, fraction=0.046)
-    fig.tight_layout()
+    fig.subplots_adjust(**_MAPS_LAYOUT)
     save(fig, "mismatch_maps.png")
 
     stat_names = ["rate_vs_intensity", "on_vs_intensity", "iei", "rate_time", "pixel_tail", "static_rate"]
     fig, axes = plt.subplots(2, 3, figsize=(15, 8))
     for ax, n in zip(axes.ravel(), stat_names):
         _plot_statistic(ax, n, cal)
-    fig.tight_layout()
+    fig.subplots_adjust(**_STATS_LAYOUT)
     save(fig, "statistics.png")
 
     for e in cal.report["effects"]:
@@ -227,8 +251,10 @@ def figures(cal: Calibration, out: Path) -> list[str]:
             continue
         fig, ax = plt.subplots(figsize=(6, 4))
         _plot_statistic(ax, EFFECTS[e["name"]].statistic, cal)
-        ax.set_title(f"{e['name']}: {EFFECTS[e['name']].statistic} (before = base, after = fitted)")
-        fig.tight_layout()
+        ax.set_title(f"{e['name']}: {EFFECTS[e['name']].statistic} (before = base, after = fitted)", fontsize=9)
+        fig.subplots_adjust(**_EFFECT_LAYOUT)
+        if EFFECTS[e["name"]].statistic in TWIN_AXIS_STATISTICS:
+            fig.subplots_adjust(right=_TWIN_RIGHT)
         save(fig, f"effect_{e['name']}.png")
     return names
 

@@ -160,6 +160,30 @@ def test_contexts_then_runs_in_the_worker_with_the_configured_numba_threads(hot_
     for i, (j, thread, n_threads, n_frames) in got.items():
         assert j == i and thread.startswith("rdnet-calib-context") and n_threads == 1 and n_frames > 2
 
+def test_a_figure_for_every_effect_and_the_still_pixels_rate_in_hz(hot_cal, tmp_path):
+    """Every effect's own statistic can be drawn (one figure per named effect), and the
+    still-pixel panel shows each series' rate in events / pixel / s on its own axis: a
+    ratio to the recording's rate is meaningless when its still pixels hardly fire."""
+    from rdnet.calib.report import _plot_statistic, figures, import_pyplot
+    cal, _ = hot_cal
+    every = dataclasses.replace(cal, report={**cal.report,
+                                             "effects": [{**e, "missing": True} for e in cal.report["effects"]]})
+    names = figures(every, tmp_path)
+    assert {f"effect_{e['name']}.png" for e in cal.report["effects"]} <= set(names)
+    assert all((tmp_path / n).stat().st_size > 1000 for n in names)
+    plt = import_pyplot()
+    fig, ax = plt.subplots()
+    _plot_statistic(ax, "static_rate", cal)
+    rate_ax = next(a for a in fig.axes if a is not ax)
+    heights = [b.get_height() for b in rate_ax.patches]
+    assert heights == pytest.approx([float(s["static_rate"]) for s in
+                                     (cal.real_stats, cal.base_stats, cal.fitted_stats)])
+    fractions = [b.get_height() for b in ax.patches]
+    assert fractions[:2] == pytest.approx([float(cal.real_stats["static_on_fraction"]),
+                                           float(cal.real_stats["on_fraction"])])
+    plt.close(fig)
+
+
 def test_signature_cell_known_values():
     e = {"statistic": "lag", "signature": {"heldout_before": 1.23456, "heldout_after": 0.2, "z": 8.04,
                                            "vetoed": False}}
