@@ -16,7 +16,8 @@ report.json schema::
     {"recording": str, "base_config": {"sensor": {...}, "degrade": {...}},
      "fitted_config": {"sensor": {...}, "degrade": {...}},
      "effects": [{"name", "missing", "parameters", "where", "evidence", "confidence", "rank",
-                  "heldout_gain", "seed_std", "fitted", "screen_gain", "statistic"}],
+                  "heldout_gain", "seed_std", "fitted", "screen_gain", "statistic", "signature",
+                  "look_alikes", "caveats"}],
      "discrepancy": {"metric", "fit_before", "fit_after", "heldout_before", "heldout_after", ...},
      "basic_refit": {...}, "mismatch": {...}, "consistency": {...},
      "setup": {..., "simulations", "search": {"search_pixels", "search_stride", "kernel_runs", ...}}}

@@ -184,6 +184,29 @@ def test_a_figure_for_every_effect_and_the_still_pixels_rate_in_hz(hot_cal, tmp_
     plt.close(fig)
 
 
+def test_caveat_when_the_bandwidth_floor_moves_from_the_declared_one(hot_cal):
+    """A fitted dark-current floor is flagged (interpolation error in the dark looks the
+    same), with both values; a floor kept at the declared value, or another effect, is not."""
+    from rdnet.calib.calibrate import caveats
+    from rdnet.calib.report import markdown
+    declared = DegradeConfig(cutoff_floor=0.078)
+    (text,) = caveats("bandwidth", {"cutoff_hz": 120.0, "cutoff_floor": 0.03}, declared, "flow")
+    assert "cutoff_floor fitted 0.03 against the declared 0.078: a lower floor slows" in text
+    assert "flow interpolation" in text
+    (text,) = caveats("bandwidth", {"cutoff_hz": 120.0, "cutoff_floor": 0.3}, declared, None)
+    assert "a higher floor speeds up" in text and "error of the frames" in text
+    assert caveats("bandwidth", {"cutoff_hz": 120.0, "cutoff_floor": 0.078}, declared, "flow") == []
+    assert caveats("bandwidth", {"cutoff_hz": 120.0, "cutoff_floor": 0.0785}, declared, "flow") == []   # < 1 %
+    assert caveats("latency", {"latency_us": 800.0}, declared, "flow") == []
+    cal, _ = hot_cal
+    assert all(e["caveats"] == [] for e in cal.report["effects"])      # hot pixels: nothing to flag
+    assert "## Caveats" not in markdown(cal, [])
+    flagged = {**cal.report, "effects": [{**e, "caveats": ["a note"]} if e["missing"] else e
+                                         for e in cal.report["effects"]]}
+    md = markdown(dataclasses.replace(cal, report=flagged), [])
+    assert "## Caveats\n\n- **hot_pixels**: a note" in md
+
+
 def test_signature_cell_known_values():
     e = {"statistic": "lag", "signature": {"heldout_before": 1.23456, "heldout_after": 0.2, "z": 8.04,
                                            "vetoed": False}}
