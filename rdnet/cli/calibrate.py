@@ -49,14 +49,20 @@ def run(args) -> int:
         if not src.has_frames:
             raise FormatError(args.recording, "frames", "recording has no frames (calibrate simulates from them)")
     rec = load(args.recording)
+    importer = None
     if not args.no_plots:
         # matplotlib's import (about 0.4 s) overlaps the calibration, whose threads spend
         # their time in numba, OpenCV and numpy with the GIL released
         import threading
 
         from rdnet.calib.report import import_pyplot
-        threading.Thread(target=import_pyplot, name="rdnet-import-pyplot", daemon=True).start()
-    cal = calibrate(rec, sensor, degrade, cfg, seed=args.seed, interpolate=interp, source=str(args.recording))
+        importer = threading.Thread(target=import_pyplot, name="rdnet-import-pyplot")
+        importer.start()
+    try:
+        cal = calibrate(rec, sensor, degrade, cfg, seed=args.seed, interpolate=interp, source=str(args.recording))
+    finally:
+        if importer is not None:
+            importer.join()       # also when the calibration fails: no import left running at exit
     paths = write_report(cal, args.out, plots=not args.no_plots)
     print(finding(cal.report))
     print(f"wrote {', '.join(str(p) for p in paths[:2])} and {len(paths) - 2} figures "
