@@ -25,7 +25,7 @@ from tqdm.auto import tqdm
 
 from rdnet.calib.consistency import consistency
 from rdnet.calib.context import CalibContext, build_context, subsample_context
-from rdnet.calib.effects import absent_effects, apply
+from rdnet.calib.effects import EFFECTS, absent_effects, apply
 from rdnet.calib.fit import (SIGNATURE_Z, FitResult, Objective, SimulateFn, calibrate_fit, fit_basic, look_alikes,
                              screen_gains)
 from rdnet.calib.locate import residuals, where
@@ -386,32 +386,49 @@ SEPARATING_MEASUREMENTS = (
 #: relative change of a tuning parameter from its declared value that :func:`caveats` reports
 TUNING_MOVED = 0.01
 
+#: per tuning parameter (``Effect.tuning``): what its move does, what outside the effect
+#: vocabulary does the same (``{how}``: the frames as the calibration interpolated them),
+#: where the proof shows it, and the measurement that separates the two (:func:`caveats`)
+TUNING_LOOK_ALIKES = {
+    "cutoff_floor": {
+        "lower": "a lower floor slows the darkest pixels",
+        "higher": "a higher floor speeds up the darkest pixels",
+        "look_alike": "an error of {how} in the dark part of the scene shifts their events the same way",
+        "shown": "rdnet's proof shows it on recordings whose truth came from 4x denser frames: README, "
+                 "\"Bandwidth: the dark current is fitted\"",
+        "measure": "the floor",
+        "separate_with": "a still scene under a flashing LED at a few brightnesses; the delay of the events "
+                         "after each step, against brightness, gives the cutoff at each intensity with no frame "
+                         "interpolation involved",
+    },
+}
+
 
 def caveats(name: str, params: dict, degrade: DegradeConfig, interpolation: str | None) -> list[str]:
     """What the user should know before trusting effect ``name``'s fitted ``params``
     beyond its held-out gain: look-alikes outside the effect vocabulary, which the
     forward selection cannot list (:func:`rdnet.calib.fit.look_alikes` compares effects only).
 
-    Bandwidth with its dark-current floor fitted away from the declared one: the floor sets
-    how much slower the darkest pixels are, and a frame interpolation that errs in the dark
-    part of the scene moves the dark pixels' events the same way (README "Bandwidth: the
-    dark current is fitted": in the proof's block whose truths come from 4x denser frames,
+    One per tuning parameter (``Effect.tuning``) fitted away from its declared value by more
+    than :data:`TUNING_MOVED`, from :data:`TUNING_LOOK_ALIKES`. The bandwidth's dark-current
+    floor sets how much slower the darkest pixels are, and a frame interpolation that errs in
+    the dark part of the scene moves the dark pixels' events the same way (README "Bandwidth:
+    the dark current is fitted": in the proof's block whose truths come from 4x denser frames,
     the true floor 0.078 was fitted as 0.025-0.061 while the held-out discrepancy fell)."""
+    eff = EFFECTS.get(name)
+    how = f"the {interpolation} interpolation of the recorded frames" if interpolation else "the frames"
     out = []
-    if name == "bandwidth" and "cutoff_floor" in params:
-        fitted, declared = float(params["cutoff_floor"]), float(degrade.cutoff_floor)
-        if abs(fitted - declared) > TUNING_MOVED * max(abs(declared), 1e-12):
-            how = f"the {interpolation} interpolation of the recorded frames" if interpolation else "the frames"
-            change = "lower floor slows" if fitted < declared else "higher floor speeds up"
-            out.append(
-                f"cutoff_floor fitted {fitted:.3g} against the declared {declared:.3g}: a {change} the "
-                f"darkest pixels, and an error of {how} in the dark part of the scene shifts their events the "
-                f"same way, so these frames and events do not tell the two apart (rdnet's proof shows it on "
-                f"recordings whose truth came from 4x denser frames: README, \"Bandwidth: the dark current is "
-                f"fitted\"). "
-                f"To measure the floor on its own: a still scene under a flashing LED at a few brightnesses; the "
-                f"delay of the events after each step, against brightness, gives the cutoff at each intensity "
-                f"with no frame interpolation involved.")
+    for p in eff.tuning if eff else ():
+        if p.key not in params:
+            continue
+        fitted, declared = float(params[p.key]), float(getattr(degrade, p.key))
+        if abs(fitted - declared) <= TUNING_MOVED * max(abs(declared), 1e-12):
+            continue
+        t = TUNING_LOOK_ALIKES[p.key]
+        out.append(f"{p.key} fitted {fitted:.3g} against the declared {declared:.3g}: "
+                   f"{t['lower' if fitted < declared else 'higher']}, and {t['look_alike'].format(how=how)}, so "
+                   f"these frames and events do not tell the two apart ({t['shown']}). To measure "
+                   f"{t['measure']} on its own: {t['separate_with']}.")
     return out
 
 

@@ -207,27 +207,19 @@ _EFFECT_LAYOUT = dict(left=0.16, right=0.95, bottom=0.14, top=0.9)
 _TWIN_RIGHT = 0.86
 
 
-def import_pyplot():
-    """matplotlib.pyplot on the Agg backend (no display needed)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
 def figures(cal: Calibration, out: Path) -> list[str]:
-    """Write the PNG figures; returns their file names."""
-    plt = import_pyplot()
+    """Write the PNG figures (standalone Agg figures, :func:`rdnet.eval.report._figure`:
+    no pyplot, no global backend state); returns their file names."""
+    from rdnet.eval.report import _figure
 
     names = []
     floor = 0.05 * max(float(cal.real_stats["rate"]), 1e-6)
 
     def save(fig, name):
         _atomic(out / name, lambda p: fig.savefig(p, dpi=90, format="png"))
-        plt.close(fig)
         names.append(name)
 
-    fig, axes = plt.subplots(1, 5, figsize=(17, 3.4))
+    fig, axes = _figure(1, 5, figsize=(17, 3.4))
     maps = [cal.real_stats["rate_map"], cal.base_stats["rate_map"], cal.fitted_stats["rate_map"]]
     vmax = max(float(m.max()) for m in maps) or 1.0
     for ax, m, t in zip(axes[:3], maps, ("real", "sim base", "sim fitted")):
@@ -243,7 +235,7 @@ def figures(cal: Calibration, out: Path) -> list[str]:
     save(fig, "mismatch_maps.png")
 
     stat_names = ["rate_vs_intensity", "on_vs_intensity", "iei", "rate_time", "pixel_tail", "static_rate"]
-    fig, axes = plt.subplots(2, 3, figsize=(15, 8))
+    fig, axes = _figure(2, 3, figsize=(15, 8))
     for ax, n in zip(axes.ravel(), stat_names):
         _plot_statistic(ax, n, cal)
     fig.subplots_adjust(**_STATS_LAYOUT)
@@ -252,12 +244,11 @@ def figures(cal: Calibration, out: Path) -> list[str]:
     for e in cal.report["effects"]:
         if not e["missing"]:
             continue
-        fig, ax = plt.subplots(figsize=(6, 4))
-        _plot_statistic(ax, EFFECTS[e["name"]].statistic, cal)
-        ax.set_title(f"{e['name']}: {EFFECTS[e['name']].statistic} (before = base, after = fitted)", fontsize=9)
-        fig.subplots_adjust(**_EFFECT_LAYOUT)
-        if EFFECTS[e["name"]].statistic in TWIN_AXIS_STATISTICS:
-            fig.subplots_adjust(right=_TWIN_RIGHT)
+        stat = EFFECTS[e["name"]].statistic
+        fig, ax = _figure(figsize=(6, 4))
+        _plot_statistic(ax, stat, cal)
+        ax.set_title(f"{e['name']}: {stat} (before = base, after = fitted)", fontsize=9)
+        fig.subplots_adjust(**{**_EFFECT_LAYOUT, **({"right": _TWIN_RIGHT} if stat in TWIN_AXIS_STATISTICS else {})})
         save(fig, f"effect_{e['name']}.png")
     return names
 

@@ -51,12 +51,12 @@ def run(args) -> int:
     rec = load(args.recording)
     importer = None
     if not args.no_plots:
-        # matplotlib's import (about 0.4 s) overlaps the calibration, whose threads spend
-        # their time in numba, OpenCV and numpy with the GIL released
+        # matplotlib's import overlaps the calibration, whose threads spend their time in
+        # numba, OpenCV and numpy with the GIL released
         import threading
 
-        from rdnet.calib.report import import_pyplot
-        importer = threading.Thread(target=import_pyplot, name="rdnet-import-pyplot")
+        from rdnet.eval.report import import_figure_modules
+        importer = threading.Thread(target=import_figure_modules, name="rdnet-import-matplotlib")
         importer.start()
     try:
         cal = calibrate(rec, sensor, degrade, cfg, seed=args.seed, interpolate=interp, source=str(args.recording))

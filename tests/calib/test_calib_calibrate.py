@@ -164,15 +164,15 @@ def test_a_figure_for_every_effect_and_the_still_pixels_rate_in_hz(hot_cal, tmp_
     """Every effect's own statistic can be drawn (one figure per named effect), and the
     still-pixel panel shows each series' rate in events / pixel / s on its own axis: a
     ratio to the recording's rate is meaningless when its still pixels hardly fire."""
-    from rdnet.calib.report import _plot_statistic, figures, import_pyplot
+    from rdnet.calib.report import _plot_statistic, figures
+    from rdnet.eval.report import _figure
     cal, _ = hot_cal
     every = dataclasses.replace(cal, report={**cal.report,
                                              "effects": [{**e, "missing": True} for e in cal.report["effects"]]})
     names = figures(every, tmp_path)
     assert {f"effect_{e['name']}.png" for e in cal.report["effects"]} <= set(names)
     assert all((tmp_path / n).stat().st_size > 1000 for n in names)
-    plt = import_pyplot()
-    fig, ax = plt.subplots()
+    fig, ax = _figure(figsize=(6, 4))
     _plot_statistic(ax, "static_rate", cal)
     rate_ax = next(a for a in fig.axes if a is not ax)
     heights = [b.get_height() for b in rate_ax.patches]
@@ -181,7 +181,6 @@ def test_a_figure_for_every_effect_and_the_still_pixels_rate_in_hz(hot_cal, tmp_
     fractions = [b.get_height() for b in ax.patches]
     assert fractions[:2] == pytest.approx([float(cal.real_stats["static_on_fraction"]),
                                            float(cal.real_stats["on_fraction"])])
-    plt.close(fig)
 
 
 def test_caveat_when_the_bandwidth_floor_moves_from_the_declared_one(hot_cal):
@@ -205,6 +204,16 @@ def test_caveat_when_the_bandwidth_floor_moves_from_the_declared_one(hot_cal):
                                          for e in cal.report["effects"]]}
     md = markdown(dataclasses.replace(cal, report=flagged), [])
     assert "## Caveats\n\n- **hot_pixels**: a note" in md
+
+
+def test_every_tuning_parameter_has_its_look_alike():
+    """A tuning parameter (``Effect.tuning``) is searched freely, so when it moves from its
+    declared value the report must say what else moves the events the same way."""
+    from rdnet.calib.calibrate import TUNING_LOOK_ALIKES
+    keys = {p.key for e in EFFECTS.values() for p in e.tuning}
+    assert keys == {"cutoff_floor"} and keys == set(TUNING_LOOK_ALIKES)
+    for t in TUNING_LOOK_ALIKES.values():
+        assert set(t) == {"lower", "higher", "look_alike", "shown", "measure", "separate_with"}
 
 
 def test_signature_cell_known_values():
