@@ -122,11 +122,16 @@ def test_resume_refuses_other_settings_and_finished_run_is_reused(pairs, tmp_pat
     assert done.stat().st_mtime_ns == mtime  # complete: nothing retrained
 
 
-def test_stage2_starts_from_stage1_and_can_freeze_it(pairs, tmp_path):
+def test_stage2_starts_from_stage1_and_can_freeze_it(pairs, tmp_path, caplog):
     cfg = TrainConfig(**{**CFG.__dict__, "iterations": 2})
     stage1 = train("restore", cfg, TINY, pairs, tmp_path / "s1", progress=False)
     frozen = TrainConfig(**{**cfg.__dict__, "finetune_restore": False})
-    s2 = train("rdnet", frozen, TINY, pairs, tmp_path / "s2", init_checkpoint=stage1, progress=False)
+    with caplog.at_level("WARNING", logger="rdnet.train.loop"):
+        s2 = train("rdnet", frozen, TINY, pairs, tmp_path / "s2", init_checkpoint=stage1, progress=False)
+    assert "without init_checkpoint" not in caplog.text        # it was given (the warning once came anyway)
+    with caplog.at_level("WARNING", logger="rdnet.train.loop"):
+        train("rdnet", frozen, TINY, pairs, tmp_path / "s2r", progress=False)
+    assert "without init_checkpoint" in caplog.text
     w1, w2 = weights(stage1), weights(s2)
     assert all(torch.equal(w1[k], w2[f"restore.{k}"]) for k in w1)
     tuned = train("rdnet", cfg, TINY, pairs, tmp_path / "s2b", init_checkpoint=stage1, progress=False)
