@@ -417,7 +417,7 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
         _init_from(task, net, Path(init_checkpoint), args)
     if state is None and init_deblur is not None:
         _init_deblur(task, net, Path(init_deblur), args)
-    elif task == "rdnet":
+    if task == "rdnet" and state is None and init_checkpoint is None:
         log.warning("rdnet without init_checkpoint: stage 1 starts from random weights")
     net.to(device)
     opt, sched = make_optimizer(task, net, cfg)
