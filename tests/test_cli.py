@@ -179,3 +179,14 @@ def test_info_dvxplorer_aedat4_without_frames(capsys, dvxplorer_path):
     s = json.loads(out)
     assert rc == 0 and (s["width"], s["height"], s["events"], s["frames"]) == (320, 240, 111_954, 0)
     assert round(s["on_fraction"], 3) == 0.491 and "frame_rate_hz" not in s
+
+
+def test_every_long_command_takes_no_progress():
+    """The commands that show a progress bar all take --no-progress (calibrate and simulate
+    once did not)."""
+    from rdnet.cli import build_parser
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    for name in ("info", "convert", "simulate", "calibrate", "restore", "deblur"):
+        opts = {o: a for a in sub.choices[name]._actions for o in a.option_strings}
+        assert "--no-progress" in opts and opts["--no-progress"].dest == "progress", name
+        assert opts["--no-progress"].default is True, name

@@ -25,6 +25,8 @@ def register(subparsers) -> None:
     p.add_argument("--no-interpolate", action="store_true",
                    help="simulate from the frames as given (as interpolate.method=none)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    from rdnet.cli.info import add_progress_arg
+    add_progress_arg(p)
     p.set_defaults(func=run)
 
 
@@ -59,7 +61,8 @@ def run(args) -> int:
         importer = threading.Thread(target=import_figure_modules, name="rdnet-import-matplotlib")
         importer.start()
     try:
-        cal = calibrate(rec, sensor, degrade, cfg, seed=args.seed, interpolate=interp, source=str(args.recording))
+        cal = calibrate(rec, sensor, degrade, cfg, seed=args.seed, interpolate=interp, source=str(args.recording),
+                        progress=args.progress)
     finally:
         if importer is not None:
             importer.join()       # also when the calibration fails: no import left running at exit

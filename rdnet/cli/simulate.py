@@ -55,6 +55,8 @@ def register(subparsers) -> None:
     p.add_argument("--compression", choices=["auto", "lzf", "gzip", "none"], default="auto",
                    help="HDF5 compression of OUTPUT (default auto: frames of an HDF5 input copied as "
                         "stored, the rest LZF; lzf: fast; gzip: ~smaller, slower; none)")
+    from rdnet.cli.info import add_progress_arg
+    add_progress_arg(p)
     p.set_defaults(func=run)
 
 
@@ -179,7 +181,7 @@ def run(args) -> int:
             with contextlib.closing(prefetch(frame_chunks(counted(bg), interpolate=interp,
                                                           log_eps=sensor.log_eps, chunk=args.chunk,
                                                           with_log=True))) as chunks:
-                for evs in stream_events(chunks, sensors, progress=True):
+                for evs in stream_events(chunks, sensors, progress=args.progress):
                     for g, ev in zip(groups, evs):
                         bg.append_events(ev, g)
                         counts[g] += len(ev)
