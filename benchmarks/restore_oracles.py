@@ -14,7 +14,8 @@ some kind of restorer could reach:
 * for the study's RDNet stage 1 (``models/rdnet``, seed 0, as in ``metrics/restoration.json``):
   its own occupancy with the undegraded counts put in, and its counts re-mapped by a lookup
   table fitted *on the test split itself* (count -> median undegraded count; (count, raw count)
-  -> median), which bounds what any re-calibration of its count head could gain.
+  -> median), which bounds what any re-calibration of its count head could gain, and its
+  occupancy threshold swept over the test split (the fitted one matches the validation count).
 
 Nothing is trained; the oracles read ``data/pairs/test.h5`` (``dvc repro blur``) and the study's
 checkpoint. Writes ``benchmarks/results/restore_oracles.{json,md}``.
@@ -105,6 +106,14 @@ def main() -> int:
             median_lookup(rc, u, rc))
         add("  its counts re-mapped: (count, raw count) -> median undegraded count (fitted on test)", "oracle",
             median_lookup(rc, u, rc * 1000 + np.minimum(d, 999)))
+        import copy
+        base = float(ck["extra"]["decision"]["threshold"])
+        for th in (0.1, 0.2, 0.5, 0.65, 0.8, 0.9):      # the decision threshold swept on the test split
+            alt = copy.deepcopy(ck)
+            alt["extra"]["decision"]["threshold"] = th
+            rt = np.asarray(predict(kind, args.checkpoint, args.pairs, "degraded", batch_size=8, device="cpu",
+                                    events_out=True, loaded=alt)["restored_counts"]).astype(np.int64)
+            add(f"  its occupancy threshold {th:g} instead of the fitted {base:.3f} (swept on test)", "oracle", rt)
         occ = rc > 0
         both = occ & (u > 0)
         detail = {"occupied_polarity_voxels": int(occ.sum()),
