@@ -31,7 +31,9 @@ class StudyConfig:
     ``rdnet_stage2_init``: a network of ``networks`` (a DeblurNet, e.g. ``deblur_undegraded``)
     whose weights start RDNet's stage 2, seed by seed; null: stage 2 starts from scratch.
     ``stress_scales`` / ``stress_rows``: the stress test (:mod:`rdnet.study.stress`) scores
-    these rows on the test sequences with every effect at exactly each scale x ``degrade``."""
+    these rows on the test sequences with every effect at exactly each scale x ``degrade``.
+    ``circuit_draws``: independent draws of the circuit generator in stage
+    ``restoration_circuit`` (:mod:`rdnet.study.independent`)."""
 
     seeds: tuple = (0, 1, 2)
     parallel: int = 1
@@ -40,6 +42,7 @@ class StudyConfig:
     rdnet_stage2_init: Optional[str] = None
     stress_scales: tuple = (0.5, 1.0, 1.5, 2.0, 3.0)
     stress_rows: tuple = ("undegraded_train", "degraded_train", "rdnet", "restored")
+    circuit_draws: int = 3
 
     def __post_init__(self):
         seeds = tuple(int(s) for s in self.seeds)
@@ -57,6 +60,8 @@ class StudyConfig:
         object.__setattr__(self, "stress_rows", tuple(str(r) for r in self.stress_rows))
         if not self.launcher.strip():
             raise ConfigError("study.launcher", "must name a command (python or torchrun ...)")
+        if int(self.circuit_draws) < 1:
+            raise ConfigError("study.circuit_draws", f"must be >= 1, got {self.circuit_draws}")
         if int(self.parallel) < 1:
             raise ConfigError("study.parallel", f"must be >= 1, got {self.parallel}")
 

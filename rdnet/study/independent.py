@@ -1,0 +1,135 @@
+"""Restoration scored against a ground truth that rdnet's simulator did not make (stage
+``restoration_circuit``, issue 11).
+
+The study's test split is simulated by :mod:`rdnet.sim.sensor`, and the restorers were trained
+on that simulator's streams, so ``metrics/restoration.json`` says how well they invert it. Here
+the truth and the degraded stream both come from the independent circuit generator
+:mod:`rdnet.circuit` (a continuous-time photoreceptor / source-follower / comparator model that
+shares no code with rdnet's simulator), driven by the frames of the study's test sequences:
+
+* undegraded: the circuit at the nominal ``sensor`` thresholds with nothing else (``i_dark`` =
+  ``sensor.log_eps``, infinite bandwidth, no noise, no refractory hold);
+* degraded: the circuit with each sequence's own test degradation where the circuit has a
+  counterpart (:func:`rdnet.circuit.from_degrade`: threshold mismatch and ON/OFF ratio, its
+  photoreceptor bandwidth for ``cutoff_hz``, refractory hold, shot noise, leak, hot pixels,
+  jitter, latency). The readout period has none and is left out.
+
+Those files then go through the study's own code: :func:`rdnet.study.data.make_pairs` (the blur
+stage's windows, blurry images and voxel grids) and :func:`rdnet.study.rows.restoration_table`
+(raw, the filters, the EDnCNN-style classifier and every stage-1 network, all seeds), so every
+number compares with ``metrics/restoration.json``. Several circuit draws (pixels, noise, start
+states) give a spread. Nothing is trained or tuned on these streams.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from rdnet.circuit import from_degrade, generate
+from rdnet.config import from_dict, section
+from rdnet.events.io.hdf5 import H5RecordingWriter, read_events, read_recording
+from rdnet.sim.settings import DegradeConfig
+from rdnet.study.data import make_pairs, sequences
+from rdnet.study.rows import EVENT_KEYS, restoration_table
+
+log = logging.getLogger(__name__)
+
+#: root attributes carried over from the study's event files (the blur stage reads them)
+CARRIED_ATTRS = ("degradation_level", "degrade_json", "scene_background", "scene_spec", "scene_split")
+#: event metrics averaged over the draws (and given a spread)
+KEYS = tuple(k for k in EVENT_KEYS if k not in ("restored", "reference"))
+
+
+def circuit_file(src: Path, dst: Path, sensor, seed: int) -> dict:
+    """Write ``dst``: the frames and attributes of the study's event file ``src`` with events
+    from the circuit generator, ``events_ideal`` (nominal thresholds only) and ``events``
+    (``src``'s own degradation, without the readout period). Returns the event counts of both
+    generators."""
+    rec = read_recording(src)
+    frames = rec.require_frames(str(src))
+    deg = from_dict(DegradeConfig, json.loads(rec.attrs["degrade_json"]), "degrade", src)
+    rng = np.random.default_rng(seed)
+    ideal = generate(frames.images, frames.t_us, from_degrade(sensor, DegradeConfig()), rng)
+    degraded = generate(frames.images, frames.t_us,
+                        from_degrade(sensor, dataclasses.replace(deg, sample_period_us=0.0)), rng)
+    with H5RecordingWriter(dst, rec.width, rec.height, sensor="rdnet-circuit") as w:
+        w.write_frames(frames)
+        w.append_events(ideal, group="events_ideal")
+        w.append_events(degraded, group="events")
+        for key in CARRIED_ATTRS:
+            if key in rec.attrs:
+                w.set_attr(key, rec.attrs[key])
+    return {"sequence": src.name, "circuit": {"undegraded": len(ideal), "degraded": len(degraded)},
+            "simulator": {"undegraded": len(read_events(src, group="events_ideal")),
+                          "degraded": len(rec.require_events(str(src)))}}
+
+
+def circuit_restoration(params: dict, events_dir: Path, learned: dict[str, Path], *, draws: int = 3,
+                        seed: int = 0, ednccn: Path | None = None) -> dict:
+    """The restoration table (:func:`rdnet.study.rows.restoration_table`) of the test split
+    rendered ``draws`` times by the circuit generator: per method the event metrics averaged
+    over the draws with their standard deviation (``<key>_draw_std``), and the event counts of
+    every sequence and draw beside the simulator's."""
+    sensor, restore = section(params, "sensor"), section(params, "restore")
+    files = sequences(events_dir, "test")
+    if not files:
+        from rdnet.errors import ConfigError
+        raise ConfigError("events", f"{events_dir}: no test sequences (run the simulate stage)")
+    tables, counts = [], []
+    for draw in range(draws):
+        with tempfile.TemporaryDirectory() as tmp:
+            work = Path(tmp)
+            (work / "events" / "test").mkdir(parents=True)
+            drawn = [circuit_file(src, work / "events" / "test" / src.name, sensor, 1000 * (seed + draw) + i)
+                     for i, src in enumerate(files)]
+            for c in drawn:
+                log.info("draw %d, %s: circuit %d undegraded / %d degraded events (simulator %d / %d)", draw,
+                         c["sequence"], c["circuit"]["undegraded"], c["circuit"]["degraded"],
+                         c["simulator"]["undegraded"], c["simulator"]["degraded"])
+            counts.append(drawn)
+            make_pairs(params, work / "events", work / "pairs", splits=("test",))
+            tables.append(restoration_table(section(params, "ablation"), work / "pairs" / "test.h5",
+                                            work / "events" / "test", learned, seeds=section(params, "study").seeds,
+                                            baf_dt_us=restore.baf_dt_us, gef_bins=restore.gef_bins, ednccn=ednccn))
+    methods = {}
+    for name in tables[0]:
+        if "events" not in tables[0][name]:
+            continue
+        vals = {k: [float(t[name]["events"][k]) for t in tables] for k in KEYS}
+        methods[name] = {k: float(np.mean(v)) for k, v in vals.items()}
+        methods[name].update({f"{k}_draw_std": float(np.std(v, ddof=1)) if len(v) > 1 else 0.0
+                              for k, v in vals.items()})
+    return {"generator": "rdnet.circuit; undegraded: nominal thresholds only; degraded: each test sequence's "
+                         "degradation through rdnet.circuit.from_degrade (no readout period)",
+            "draws": draws, "seed": seed, "events": methods, "sequences": counts}
+
+
+def markdown(result: dict, study: dict | None = None) -> str:
+    """The table of :func:`circuit_restoration` (``study``: ``metrics/restoration.json``, its
+    values in brackets)."""
+    rows = result["events"]
+    raw = rows["degraded"]["voxel_l1_all"]
+    study = study or {}
+
+    def cell(name, k, fmt):
+        s = study.get(name, {}).get("events", {})
+        spread = f" ± {rows[name][k + '_draw_std']:{fmt}}" if k in ("f1", "voxel_l1_all") else ""
+        return f"{rows[name][k]:{fmt}}{spread}" + (f" ({s[k]:{fmt}})" if k in s else "")
+    lines = ["# Restoration on the independent circuit generator (stage `restoration_circuit`)", "",
+             f"The study's {len(result['sequences'][0])} test sequences rendered by `rdnet.circuit` in "
+             f"{result['draws']} independent draws and scored as `metrics/restoration.json` (events matched per voxel "
+             "and polarity against the circuit's undegraded stream; learned rows: mean over the training seeds); "
+             "mean over the draws ± their standard deviation. In brackets: the same method on the study's own "
+             "test split (rdnet's simulator).", "",
+             "| method | F1 | precision | recall | count ratio | all-voxel L1 | vs raw |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
+    for name in sorted(rows, key=lambda n: -rows[n]["f1"]):
+        lines.append(f"| {name} | {cell(name, 'f1', '.3f')} | {cell(name, 'precision', '.3f')} | "
+                     f"{cell(name, 'recall', '.3f')} | {cell(name, 'count_ratio', '.2f')} | "
+                     f"{cell(name, 'voxel_l1_all', '.4f')} | {100 * (rows[name]['voxel_l1_all'] / raw - 1):+.1f} % |")
+    return "\n".join(lines) + "\n"

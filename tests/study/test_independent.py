@@ -1,0 +1,60 @@
+"""The restoration check on the independent circuit generator (rdnet.study.independent)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from rdnet.config import load_params, section
+from rdnet.events.io import read_events, read_header, read_recording
+from rdnet.study import data as D
+from rdnet.study.independent import circuit_file, circuit_restoration, markdown
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    """A one-sequence test split of the study's data steps (20 x 24 pixels)."""
+    tmp = tmp_path_factory.mktemp("study")
+    p = yaml.safe_load((ROOT / "params.yaml").read_text())
+    p["scenes"].update(n_train=1, n_test=1, height=20, width=24, n_frames=40, n_objects=1)
+    p["interpolate"].update(max_upsample=4)
+    params = load_params(None, base=p)
+    D.render_scenes(params, tmp / "scenes")
+    D.interpolate_scenes(params, tmp / "scenes", tmp / "interp")
+    D.simulate_sequences(params, tmp / "scenes", tmp / "interp", tmp / "events")
+    return params, tmp / "events"
+
+
+def test_circuit_file_keeps_frames_and_degradation(study, tmp_path):
+    params, events = study
+    src = events / "test" / "seq_000.h5"
+    counts = circuit_file(src, tmp_path / "a.h5", section(params, "sensor"), seed=3)
+    a, s = read_recording(tmp_path / "a.h5"), read_recording(src)
+    assert read_header(tmp_path / "a.h5")[2] == "rdnet-circuit"
+    assert np.array_equal(a.frames.images, s.frames.images) and np.array_equal(a.frames.t_us, s.frames.t_us)
+    assert a.attrs["degrade_json"] == s.attrs["degrade_json"]
+    ideal, degraded = read_events(tmp_path / "a.h5", "events_ideal"), read_events(tmp_path / "a.h5", "events")
+    assert counts["circuit"] == {"undegraded": len(ideal), "degraded": len(degraded)}
+    assert counts["simulator"]["undegraded"] == len(read_events(src, "events_ideal"))
+    # two ideal pixels at the same thresholds on the same frames, written independently: close counts
+    assert abs(len(ideal) / counts["simulator"]["undegraded"] - 1) < 0.25
+    assert len(degraded) > 0 and not np.array_equal(ideal.t[:50], degraded.t[:50])
+    circuit_file(src, tmp_path / "b.h5", section(params, "sensor"), seed=3)     # same seed, same events
+    assert np.array_equal(read_events(tmp_path / "b.h5", "events").array, degraded.array)
+
+
+def test_circuit_restoration_table_over_draws(study):
+    params, events = study
+    res = circuit_restoration(params, events, {}, draws=2, seed=0)
+    assert res["draws"] == 2 and len(res["sequences"]) == 2
+    rows = res["events"]
+    assert {"degraded", "baf", "stcf"} <= set(rows)
+    for r in rows.values():
+        assert 0 <= r["f1"] <= 1 and r["f1_draw_std"] >= 0 and r["voxel_l1_all"] >= 0
+    table = markdown(res, {"degraded": {"events": {k: 0.5 for k in ("f1", "precision", "recall", "count_ratio",
+                                                                     "voxel_l1_all")}}})
+    assert "| degraded |" in table and "(0.500)" in table and "+0.0 %" in table
