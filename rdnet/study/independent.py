@@ -17,8 +17,12 @@ shares no code with rdnet's simulator), driven by the frames of the study's test
 Those files then go through the study's own code: :func:`rdnet.study.data.make_pairs` (the blur
 stage's windows, blurry images and voxel grids) and :func:`rdnet.study.rows.restoration_table`
 (raw, the filters, the EDnCNN-style classifier and every stage-1 network, all seeds), so every
-number compares with ``metrics/restoration.json``. Several circuit draws (pixels, noise, start
-states) give a spread. Nothing is trained or tuned on these streams.
+number compares with ``metrics/restoration.json``; and every ablation row is scored on the same
+pairs (:func:`rdnet.study.rows.evaluate_ablation_row`, all seeds), with each trained row's gap to
+row 2 (``degraded_train``) paired by seed, so the deblurring findings are checked there too. The
+windows, blurry images and sharp targets are the study's (same seed); only the events differ.
+Several circuit draws (pixels, noise, start states) give a spread. Nothing is trained or tuned
+on these streams.
 """
 from __future__ import annotations
 
@@ -35,7 +39,7 @@ from rdnet.config import from_dict, section
 from rdnet.events.io.hdf5 import H5RecordingWriter, read_events, read_recording
 from rdnet.sim.settings import DegradeConfig
 from rdnet.study.data import make_pairs, sequences
-from rdnet.study.rows import EVENT_KEYS, restoration_table
+from rdnet.study.rows import EVENT_KEYS, evaluate_ablation_row, restoration_table, seed_spread
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +47,8 @@ log = logging.getLogger(__name__)
 CARRIED_ATTRS = ("degradation_level", "degrade_json", "scene_background", "scene_spec", "scene_split")
 #: event metrics averaged over the draws (and given a spread)
 KEYS = tuple(k for k in EVENT_KEYS if k not in ("restored", "reference"))
+#: the row every trained row's PSNR gap is paired against (row 2 of the paper's ablation)
+BASE_ROW = "degraded_train"
 
 
 def circuit_file(src: Path, dst: Path, sensor, seed: int) -> dict:
@@ -70,17 +76,18 @@ def circuit_file(src: Path, dst: Path, sensor, seed: int) -> dict:
 
 
 def circuit_restoration(params: dict, events_dir: Path, learned: dict[str, Path], *, draws: int = 3,
-                        seed: int = 0, ednccn: Path | None = None) -> dict:
+                        seed: int = 0, ednccn: Path | None = None, rows: tuple[str, ...] = ()) -> dict:
     """The restoration table (:func:`rdnet.study.rows.restoration_table`) of the test split
     rendered ``draws`` times by the circuit generator: per method the event metrics averaged
-    over the draws with their standard deviation (``<key>_draw_std``), and the event counts of
-    every sequence and draw beside the simulator's."""
+    over the draws with their standard deviation (``<key>_draw_std``), the event counts of
+    every sequence and draw beside the simulator's, and (``rows``: ablation row ids whose
+    networks exist) every row's PSNR (:func:`row_summary`)."""
     sensor, restore = section(params, "sensor"), section(params, "restore")
     files = sequences(events_dir, "test")
     if not files:
         from rdnet.errors import ConfigError
         raise ConfigError("events", f"{events_dir}: no test sequences (run the simulate stage)")
-    tables, counts = [], []
+    tables, counts, row_runs = [], [], []
     for draw in range(draws):
         with tempfile.TemporaryDirectory() as tmp:
             work = Path(tmp)
@@ -96,6 +103,10 @@ def circuit_restoration(params: dict, events_dir: Path, learned: dict[str, Path]
             tables.append(restoration_table(section(params, "ablation"), work / "pairs" / "test.h5",
                                             work / "events" / "test", learned, seeds=section(params, "study").seeds,
                                             baf_dt_us=restore.baf_dt_us, gef_bins=restore.gef_bins, ednccn=ednccn))
+            if rows:
+                ablation = section(params, "ablation")
+                row_runs.append({r: evaluate_ablation_row(ablation, r, work / "pairs" / "test.h5", work / "events" / "test",
+                                                          seeds=section(params, "study").seeds) for r in rows})
     methods = {}
     for name in tables[0]:
         if "events" not in tables[0][name]:
@@ -106,12 +117,34 @@ def circuit_restoration(params: dict, events_dir: Path, learned: dict[str, Path]
                               for k, v in vals.items()})
     return {"generator": "rdnet.circuit; undegraded: nominal thresholds only; degraded: each test sequence's "
                          "degradation through rdnet.circuit.from_degrade (no readout period)",
-            "draws": draws, "seed": seed, "events": methods, "sequences": counts}
+            "draws": draws, "seed": seed, "events": methods, "rows": row_summary(row_runs) if row_runs else {},
+            "sequences": counts}
 
 
-def markdown(result: dict, study: dict | None = None) -> str:
-    """The table of :func:`circuit_restoration` (``study``: ``metrics/restoration.json``, its
-    values in brackets)."""
+def row_summary(runs: list[dict[str, dict]]) -> dict:
+    """Per row, over the draws ``runs`` (each: row id -> :func:`evaluate_ablation_row`):
+    ``psnr`` (mean over draws and seeds), ``psnr_seeds`` (per seed, mean over the draws),
+    ``psnr_draw_std`` (spread of the draws' seed means) and, for a trained row beside
+    :data:`BASE_ROW`, ``gap_vs_row2`` / ``gap_vs_row2_std`` / ``gap_vs_row2_seeds``: its PSNR
+    minus row 2's, paired by seed, mean and sample spread over the seeds."""
+    out = {}
+    for row in runs[0]:
+        per_draw = np.array([r[row].get("psnr_seeds") or [r[row]["psnr"]] for r in runs], float)   # (draws, seeds)
+        seeds = per_draw.mean(0)
+        entry = {"psnr": float(seeds.mean()), "psnr_seeds": seeds.tolist(), "seeds": runs[0][row]["seeds"],
+                 "psnr_draw_std": float(np.std(per_draw.mean(1), ddof=1)) if len(runs) > 1 else 0.0}
+        base = runs[0].get(BASE_ROW)
+        if base is not None and row != BASE_ROW and runs[0][row]["seeds"] and runs[0][row]["seeds"] == base["seeds"]:
+            gap = seeds - np.array([r[BASE_ROW]["psnr_seeds"] for r in runs], float).mean(0)
+            entry.update(gap_vs_row2=float(gap.mean()), gap_vs_row2_std=seed_spread(gap.tolist()),
+                         gap_vs_row2_seeds=gap.tolist())
+        out[row] = entry
+    return out
+
+
+def markdown(result: dict, study: dict | None = None, study_rows: dict | None = None) -> str:
+    """The tables of :func:`circuit_restoration` (``study``: ``metrics/restoration.json``,
+    ``study_rows``: row id -> ``results/rows/<row>.json``; their values in brackets)."""
     rows = result["events"]
     raw = rows["degraded"]["voxel_l1_all"]
     study = study or {}
@@ -132,4 +165,23 @@ def markdown(result: dict, study: dict | None = None) -> str:
         lines.append(f"| {name} | {cell(name, 'f1', '.3f')} | {cell(name, 'precision', '.3f')} | "
                      f"{cell(name, 'recall', '.3f')} | {cell(name, 'count_ratio', '.2f')} | "
                      f"{cell(name, 'voxel_l1_all', '.4f')} | {100 * (rows[name]['voxel_l1_all'] / raw - 1):+.1f} % |")
+    if result.get("rows"):
+        lines += ["", "Every ablation row on the same pairs (PSNR in dB, mean over the circuit draws and the training "
+                  "seeds ± seed spread; gap: minus row 2 `degraded_train`, paired by seed). In brackets: the study's "
+                  "own test split (`results/rows/<row>.json`).", "",
+                  "| row | PSNR | gap to row 2 |", "|---|---:|---:|"]
+        study_rows = study_rows or {}
+        for row, r in result["rows"].items():
+            s_row = study_rows.get(row, {})
+            spread = seed_spread(r["psnr_seeds"]) if len(r["psnr_seeds"]) > 1 else 0.0
+            psnr = f"{r['psnr']:.2f}" + (f" ± {spread:.2f}" if len(r["psnr_seeds"]) > 1 else "")
+            psnr += f" ({s_row['psnr']:.2f})" if "psnr" in s_row else ""
+            gap = ""
+            if "gap_vs_row2" in r:
+                gap = f"{r['gap_vs_row2']:+.2f} ± {r['gap_vs_row2_std']:.2f}"
+                base = study_rows.get(BASE_ROW, {})
+                if s_row.get("psnr_seeds") and base.get("psnr_seeds") and len(s_row["psnr_seeds"]) == len(base["psnr_seeds"]):
+                    sg = np.array(s_row["psnr_seeds"]) - np.array(base["psnr_seeds"])
+                    gap += f" ({sg.mean():+.2f} ± {seed_spread(sg.tolist()):.2f})"
+            lines.append(f"| {row} | {psnr} | {gap} |")
     return "\n".join(lines) + "\n"
