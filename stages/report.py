@@ -1,5 +1,5 @@
 """Stage `report`: results/ablation.md (table from the metrics, with the paper's numbers
-and gaps) and figures (PSNR per row, PSNR against degradation level, sample grid).
+and gaps, and the same on the independent circuit generator's events) and figures (PSNR per row, PSNR against degradation level, sample grid).
 `python stages/report.py --sync-readme` copies the table into README.md."""
 from pathlib import Path
 
@@ -15,7 +15,7 @@ def main(args, params):
         print("README.md updated" if changed else "README.md already up to date")
         return
     write_report(args.details, args.restoration, args.out, order,
-                 checkpoints={rid: r.get("checkpoint") for rid, r in rows.items()})
+                 checkpoints={rid: r.get("checkpoint") for rid, r in rows.items()}, circuit_path=args.circuit)
     if args.samples:
         from rdnet.study.figures import sample_figure
         sample_figure(params, args.pairs, args.out / "samples.png")
@@ -24,6 +24,8 @@ def main(args, params):
 p = _common.parser(__doc__)
 p.add_argument("--details", type=Path, default=Path("results/rows"))
 p.add_argument("--restoration", type=Path, default=Path("metrics/restoration.json"))
+p.add_argument("--circuit", type=Path, default=Path("metrics/restoration_circuit.json"),
+               help="the rows on the independent generator's events (a column when present)")
 p.add_argument("--pairs", type=Path, default=Path("data/pairs/test.h5"))
 p.add_argument("--out", type=Path, default=Path("results"))
 p.add_argument("--samples", action="store_true", help="also draw results/samples.png")

@@ -91,8 +91,10 @@ def paired_gap(a: dict, b: dict) -> dict:
             "p": None, "per_seed": []}
 
 
-def rows_frame(rows: dict, compute: dict):
-    """The ablation table as a pandas DataFrame (one line per row, in params order)."""
+def rows_frame(rows: dict, compute: dict, circuit: dict | None = None):
+    """The ablation table as a pandas DataFrame (one line per row, in params order).
+    ``circuit``: the rows of stage ``restoration_circuit`` (``metrics/restoration_circuit.json``
+    ``rows``), shown as a column of the PSNR on the independent generator's events."""
     import pandas as pd
     recs = []
     for rid, m in rows.items():
@@ -107,21 +109,46 @@ def rows_frame(rows: dict, compute: dict):
                      "train steps": f"{c['iterations']:.0f}" if c else "-",
                      "train TFLOP": _f(c["train_gflop"] / 1e3, "{:.1f}") if c else "-",
                      "paper PSNR (dB)": _f(m.get("paper_psnr"))})
+        if circuit:
+            recs[-1]["PSNR, circuit events (dB)"] = _circuit_psnr(circuit.get(rid))
     return pd.DataFrame.from_records(recs)
 
 
-def gaps_frame(rows: dict):
+def _circuit_psnr(r: dict | None) -> str:
+    """Mean ± seed spread of a ``restoration_circuit`` row ("-" when it was not scored)."""
+    if not r:
+        return "-"
+    per_seed = r.get("psnr_seeds") or []
+    return _pm({"psnr": r["psnr"], "seeds": r.get("seeds") or [],
+                "psnr_std": _seed_std(per_seed) if len(per_seed) > 1 else None}, "psnr", "{:.2f}")
+
+
+def _seed_std(values) -> float:
+    import numpy as np
+    return float(np.std(np.asarray(values, float), ddof=1))
+
+
+def gaps_frame(rows: dict, circuit: dict | None = None):
+    """The paper's gaps, paired by seed; ``circuit`` (rows of ``restoration_circuit``): the same
+    gap on the independent generator's events as a column."""
     import pandas as pd
     recs = []
     for name, a, b, paper in GAPS:
         if a in rows and b in rows and "psnr" in rows[a] and "psnr" in rows[b]:
             g = paired_gap(rows[a], rows[b])
-            meas = f"{g['mean']:+.2f} ± {g['std']:.2f}" if g["std"] is not None else f"{g['mean']:+.2f}"
-            recs.append({"gap": name, "measured (dB, mean ± std over seeds)": meas,
-                         "seeds with a > b": f"{g['positive']}/{g['n']}",
-                         "paired t-test p": _f(g["p"], "{:.3f}"),
-                         "paper (dB)": "-" if paper is None else f"{paper:+.2f}"})
+            rec = {"gap": name, "measured (dB, mean ± std over seeds)": _gap_text(g),
+                   "seeds with a > b": f"{g['positive']}/{g['n']}",
+                   "paired t-test p": _f(g["p"], "{:.3f}"),
+                   "paper (dB)": "-" if paper is None else f"{paper:+.2f}"}
+            if circuit:
+                ok = a in circuit and b in circuit
+                rec["circuit events (dB)"] = _gap_text(paired_gap(circuit[a], circuit[b])) if ok else "-"
+            recs.append(rec)
     return pd.DataFrame.from_records(recs)
+
+
+def _gap_text(g: dict) -> str:
+    return f"{g['mean']:+.2f} ± {g['std']:.2f}" if g["std"] is not None else f"{g['mean']:+.2f}"
 
 
 def restoration_frame(restoration: dict):
@@ -140,13 +167,16 @@ def restoration_frame(restoration: dict):
     return pd.DataFrame.from_records(recs)
 
 
-def ablation_markdown(rows: dict, restoration: dict | None, compute: dict | None = None) -> str:
+def ablation_markdown(rows: dict, restoration: dict | None, compute: dict | None = None,
+                      circuit: dict | None = None) -> str:
     """The report's markdown (pandas ``to_markdown``): the rows with mean ± std over the
     training seeds and their training compute, the paper's gaps as paired per-seed
-    differences, and the restoration metrics."""
+    differences, and the restoration metrics. ``circuit``: the rows of stage
+    ``restoration_circuit`` (a column of each table: the same on the independent circuit
+    generator's events)."""
     compute = compute or {}
-    out = rows_frame(rows, compute).to_markdown(index=False, disable_numparse=True) + "\n"
-    gaps = gaps_frame(rows)
+    out = rows_frame(rows, compute, circuit).to_markdown(index=False, disable_numparse=True) + "\n"
+    gaps = gaps_frame(rows, circuit)
     if len(gaps):
         out += "\n" + gaps.to_markdown(index=False, disable_numparse=True) + "\n"
     if restoration:
@@ -169,14 +199,17 @@ def plot_data(rows: dict) -> tuple[list, list]:
 
 
 def write_report(details_dir: Path, restoration_path: Path | None, out_dir: Path, order,
-                 checkpoints: dict | None = None) -> dict:
+                 checkpoints: dict | None = None, circuit_path: Path | None = None) -> dict:
     """results/ablation.md, the PNG figures and the DVC plot data (``out_dir/plots``).
-    ``checkpoints``: row id -> network directory, for the compute columns."""
+    ``checkpoints``: row id -> network directory, for the compute columns; ``circuit_path``:
+    ``metrics/restoration_circuit.json`` (its rows become a column when present)."""
     rows = load_rows(details_dir, order)
     rest = json.loads(Path(restoration_path).read_text()) if restoration_path and Path(restoration_path).is_file() else None
+    circuit = (json.loads(Path(circuit_path).read_text()).get("rows") or None
+               if circuit_path and Path(circuit_path).is_file() else None)
     compute = {rid: c for rid, ck in (checkpoints or {}).items() if (c := network_compute(ck))}
     out_dir.mkdir(parents=True, exist_ok=True)
-    md = ablation_markdown(rows, rest, compute)
+    md = ablation_markdown(rows, rest, compute, circuit)
     write_text_atomic(out_dir / "ablation.md", md)
     plot_metric_bars(out_dir / "psnr_rows.png", rows)
     plot_metric_vs_level(out_dir / "psnr_vs_level.png", {k: v for k, v in rows.items() if v.get("by_level")})

@@ -73,6 +73,12 @@ def test_report_table_shows_spread_compute_and_gaps(tmp_path):
     md = ablation_markdown(rows, {"degraded": {"voxel_l1": 1.0, "voxel_psnr": 10.0}}, {"rdnet": c})
     assert "25.50 ± 0.30" in md and "1,234" in md and "| 4.0 " in md and "1.0000" in md
     assert "+0.50 ± 0.28" in md and "2/2" in md           # paired: diffs 0.3 and 0.7
+    assert "circuit" not in md
+    circuit = {"degraded_train": {"psnr": 26.0, "psnr_seeds": [25.9, 26.1], "seeds": [0, 1]},
+               "rdnet": {"psnr": 26.3, "psnr_seeds": [26.0, 26.6], "seeds": [0, 1]}}
+    md = ablation_markdown(rows, None, {"rdnet": c}, circuit)     # the restoration_circuit rows as columns
+    assert "PSNR, circuit events (dB)" in md and "26.30 ± 0.42" in md
+    assert "+0.30 ± 0.28" in md                            # circuit gap, paired: 0.1 and 0.5
     bars, levels = plot_data(rows)
     assert bars[1] == {"row": "rdnet", "psnr": 25.5, "psnr_std": 0.3}
     assert levels == [{"level": 1.0, "degraded_train": 24.0, "rdnet": 25.0}]
