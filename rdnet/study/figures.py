@@ -1,4 +1,5 @@
-"""Sample grid of the study: blurry | degraded events | restored events | RDNet | sharp."""
+"""Figures of the study: the sample grid (blurry | degraded events | restored events | RDNet |
+sharp) and the rows' gaps to row 2 on both event generators."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -21,3 +22,29 @@ def sample_figure(params: dict, pairs_path: Path, out: Path, n: int = 4) -> Path
     res = predict("rdnet", seed_checkpoint(row.checkpoint, seed), pairs_path, "degraded", indices=idx.tolist(),
                   batch_size=cfg.batch_size, device=cfg.device)
     return sample_grid(out, res["blurry"], res["voxel"], res["restored"], res["pred"], res["sharp"])
+
+
+def gap_figure(rows: dict, circuit: dict, out: Path, base: str = "degraded_train") -> Path:
+    """Each trained row's PSNR gap to ``base`` (row 2), paired by seed, on rdnet's simulated
+    test events (``rows``: ``results/rows/<row>.json``) beside the same networks on the events of
+    the independent circuit generator (``circuit``: the ``rows`` of
+    ``metrics/restoration_circuit.json``); bars are means, error bars the seed spread."""
+    from rdnet.eval.report import _figure, _save_figure
+    from rdnet.study.report import paired_gap
+    names = [r for r in rows if r != base and r in circuit and base in rows and base in circuit
+             and rows[r].get("seeds") and rows[r]["seeds"] == rows[base].get("seeds")]
+    sim = [paired_gap(rows[r], rows[base]) for r in names]
+    cir = [paired_gap(circuit[r], circuit[base]) for r in names]
+    fig, ax = _figure(figsize=(max(5.0, 0.8 * len(names) + 2.0), 3.6))
+    x = np.arange(len(names))
+    for off, gaps, label, color in ((-0.2, sim, "rdnet simulator (test split)", "tab:blue"),
+                                    (0.2, cir, "independent circuit generator", "tab:orange")):
+        ax.bar(x + off, [g["mean"] for g in gaps], 0.4, yerr=[g["std"] or 0.0 for g in gaps], capsize=3,
+               color=color, label=label)
+    ax.axhline(0.0, color="k", lw=0.8)
+    ax.set_xticks(x, names, rotation=30, ha="right")
+    ax.set_ylabel(f"PSNR gap to {base} (dB)")
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.subplots_adjust(bottom=0.35, left=0.12, right=0.98, top=0.95)
+    return _save_figure(fig, out)

@@ -202,7 +202,8 @@ def write_report(details_dir: Path, restoration_path: Path | None, out_dir: Path
                  checkpoints: dict | None = None, circuit_path: Path | None = None) -> dict:
     """results/ablation.md, the PNG figures and the DVC plot data (``out_dir/plots``).
     ``checkpoints``: row id -> network directory, for the compute columns; ``circuit_path``:
-    ``metrics/restoration_circuit.json`` (its rows become a column when present)."""
+    ``metrics/restoration_circuit.json`` (its rows become a column, and
+    ``gaps_two_generators.png`` compares the gaps, when present)."""
     rows = load_rows(details_dir, order)
     rest = json.loads(Path(restoration_path).read_text()) if restoration_path and Path(restoration_path).is_file() else None
     circuit = (json.loads(Path(circuit_path).read_text()).get("rows") or None
@@ -213,6 +214,9 @@ def write_report(details_dir: Path, restoration_path: Path | None, out_dir: Path
     write_text_atomic(out_dir / "ablation.md", md)
     plot_metric_bars(out_dir / "psnr_rows.png", rows)
     plot_metric_vs_level(out_dir / "psnr_vs_level.png", {k: v for k, v in rows.items() if v.get("by_level")})
+    if circuit:
+        from rdnet.study.figures import gap_figure
+        gap_figure(rows, circuit, out_dir / "gaps_two_generators.png")
     bars, levels = plot_data(rows)
     write_text_atomic(out_dir / "plots" / "psnr_rows.json", json.dumps(bars, indent=1) + "\n")
     write_text_atomic(out_dir / "plots" / "psnr_vs_level.json", json.dumps(levels, indent=1) + "\n")

@@ -79,6 +79,9 @@ def test_report_table_shows_spread_compute_and_gaps(tmp_path):
     md = ablation_markdown(rows, None, {"rdnet": c}, circuit)     # the restoration_circuit rows as columns
     assert "PSNR, circuit events (dB)" in md and "26.30 ± 0.42" in md
     assert "+0.30 ± 0.28" in md                            # circuit gap, paired: 0.1 and 0.5
+    from rdnet.study.figures import gap_figure
+    png = gap_figure(rows, circuit, tmp_path / "gaps.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     bars, levels = plot_data(rows)
     assert bars[1] == {"row": "rdnet", "psnr": 25.5, "psnr_std": 0.3}
     assert levels == [{"level": 1.0, "degraded_train": 24.0, "rdnet": 25.0}]
