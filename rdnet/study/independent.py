@@ -81,7 +81,12 @@ def circuit_restoration(params: dict, events_dir: Path, learned: dict[str, Path]
     rendered ``draws`` times by the circuit generator: per method the event metrics averaged
     over the draws with their standard deviation (``<key>_draw_std``), the event counts of
     every sequence and draw beside the simulator's, and (``rows``: ablation row ids whose
-    networks exist) every row's PSNR (:func:`row_summary`)."""
+    networks exist) every row's PSNR (:func:`row_summary`). ``draws`` 0: nothing is rendered
+    (a study too large for it, such as the ``paper`` profile's GOPRO split), empty tables."""
+    generator = ("rdnet.circuit; undegraded: nominal thresholds only; degraded: each test sequence's "
+                 "degradation through rdnet.circuit.from_degrade (no readout period)")
+    if draws == 0:               # switched off (study.circuit_draws: 0)
+        return {"generator": generator, "draws": 0, "seed": seed, "events": {}, "rows": {}, "sequences": []}
     sensor, restore = section(params, "sensor"), section(params, "restore")
     files = sequences(events_dir, "test")
     if not files:
@@ -115,9 +120,7 @@ def circuit_restoration(params: dict, events_dir: Path, learned: dict[str, Path]
         methods[name] = {k: float(np.mean(v)) for k, v in vals.items()}
         methods[name].update({f"{k}_draw_std": float(np.std(v, ddof=1)) if len(v) > 1 else 0.0
                               for k, v in vals.items()})
-    return {"generator": "rdnet.circuit; undegraded: nominal thresholds only; degraded: each test sequence's "
-                         "degradation through rdnet.circuit.from_degrade (no readout period)",
-            "draws": draws, "seed": seed, "events": methods, "rows": row_summary(row_runs) if row_runs else {},
+    return {"generator": generator, "draws": draws, "seed": seed, "events": methods, "rows": row_summary(row_runs) if row_runs else {},
             "sequences": counts}
 
 
@@ -145,6 +148,9 @@ def row_summary(runs: list[dict[str, dict]]) -> dict:
 def markdown(result: dict, study: dict | None = None, study_rows: dict | None = None) -> str:
     """The tables of :func:`circuit_restoration` (``study``: ``metrics/restoration.json``,
     ``study_rows``: row id -> ``results/rows/<row>.json``; their values in brackets)."""
+    if not result["draws"]:
+        return ("# Restoration on the independent circuit generator (stage `restoration_circuit`)\n\n"
+                "Not run: `study.circuit_draws` is 0.\n")
     rows = result["events"]
     raw = rows["degraded"]["voxel_l1_all"]
     study = study or {}

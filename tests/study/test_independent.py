@@ -58,3 +58,14 @@ def test_circuit_restoration_table_over_draws(study):
     table = markdown(res, {"degraded": {"events": {k: 0.5 for k in ("f1", "precision", "recall", "count_ratio",
                                                                      "voxel_l1_all")}}})
     assert "| degraded |" in table and "(0.500)" in table and "+0.0 %" in table
+
+
+def test_zero_draws_switch_the_check_off(study):
+    params, events = study
+    res = circuit_restoration(params, events, {}, draws=0)
+    assert res["draws"] == 0 and res["events"] == {} and res["rows"] == {} and res["sequences"] == []
+    assert "Not run" in markdown(res)
+    from rdnet.errors import ConfigError
+    from rdnet.study.config import StudyConfig
+    with pytest.raises(ConfigError, match="circuit_draws"):
+        StudyConfig(circuit_draws=-1)
