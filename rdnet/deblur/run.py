@@ -93,9 +93,7 @@ def prepare(recording: str | Path, params: dict, checkpoint: str | Path | None =
 
     cfg = section(params, "deblur")
     voxel, model_cfg, sensor = section(params, "voxel"), section(params, "model"), section(params, "sensor")
-    if cfg.device == "cuda" and not torch.cuda.is_available():
-        raise ConfigError("deblur.device", "cuda requested but no CUDA device is available")
-    device = resolve_device(cfg.device)
+    device = resolve_device(cfg.device, key="deblur.device")
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
     loaded = load_rdnet(resolve_checkpoint(checkpoint), model_cfg, voxel, device)

@@ -54,7 +54,7 @@ VoxelTransform = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 def _device(name: str | torch.device) -> torch.device:
     from rdnet.train.loop import resolve_device
-    return name if isinstance(name, torch.device) else resolve_device(str(name))
+    return name if isinstance(name, torch.device) else resolve_device(str(name), key="device")
 
 
 def load_method(kind: str, checkpoint: str | Path | None, pairs_path: str | Path,

@@ -290,10 +290,7 @@ def _window_data(pairs_path: Path, events_dir: Path, rows: np.ndarray, cfg: Ednc
 def _device(name: str, key: str) -> torch.device:
     """:func:`rdnet.train.loop.resolve_device`, its error naming the caller's params key."""
     from rdnet.train.loop import resolve_device
-    try:
-        return resolve_device(name)
-    except ConfigError:
-        raise ConfigError(key, f"{name!r} requested but no CUDA device is available") from None
+    return resolve_device(name, key=key)
 
 
 def train_ednccn(cfg: EdnccnConfig, pairs_path: str | Path, events_dir: str | Path, out: str | Path, *,

@@ -239,7 +239,7 @@ def load_restorer(checkpoint: str | Path | None, *, has_frames: bool, params: Ma
     """The learned restorer to use (module docstring for the search order). ``device``: cpu,
     cuda or auto (cuda when available)."""
     from rdnet.train.loop import resolve_device
-    device = str(resolve_device(str(device)))
+    device = str(resolve_device(str(device), key="restore.device"))
     if checkpoint is not None:
         path = Path(checkpoint)
         f = _checkpoint_file(path)

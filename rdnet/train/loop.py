@@ -68,13 +68,15 @@ RESUME_FREE = ("log_every", "ckpt_every", "num_workers", "threads", "device", "d
 RESTORE_TASKS = ("restore", "restore_events")
 
 
-def resolve_device(name: str, info: DistInfo | None = None) -> torch.device:
-    """'auto' -> cuda when available, else cpu; under torchrun on CUDA, cuda:LOCAL_RANK."""
+def resolve_device(name: str, info: DistInfo | None = None, key: str = "train.device") -> torch.device:
+    """'auto' -> cuda when available, else cpu; under torchrun on CUDA, cuda:LOCAL_RANK.
+    ``key``: the params key the device came from, named by the error when cuda is asked for
+    and absent."""
     if name == "auto":
         name = "cuda" if torch.cuda.is_available() else "cpu"
     if name == "cuda":
         if not torch.cuda.is_available():
-            raise ConfigError("train.device", "cuda requested but no CUDA device is available")
+            raise ConfigError(key, "cuda requested but no CUDA device is available")
         idx = info.local_rank if info is not None and info.world_size > 1 else torch.cuda.current_device()
         return torch.device("cuda", idx)
     return torch.device("cpu")

@@ -172,6 +172,18 @@ def test_recording_without_events_exits_2(tmp_path, capsys):
     _assert_no_output(tmp_path, "o.h5", "o.json")
 
 
+def test_cuda_without_a_gpu_names_the_restore_key(tmp_path, capsys, monkeypatch):
+    """No GPU (forced here): the error names restore.device (it once named train.device)."""
+    import torch
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    _write(tmp_path / "in.h5")
+    rc = main(["restore", str(tmp_path / "in.h5"), str(tmp_path / "o.h5"), "--no-progress",
+               "--set", "restore.device=cuda"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "'restore.device'" in err and "no CUDA device" in err and "train.device" not in err
+    _assert_no_output(tmp_path, "o.h5", "o.json")
+
+
 def test_gef_without_frames_exits_2(tmp_path, capsys):
     _write(tmp_path / "in.h5")
     rc = main(["restore", str(tmp_path / "in.h5"), str(tmp_path / "o.h5"), "--method", "gef", "--no-progress"])
