@@ -153,6 +153,18 @@ def interpolate_scenes(params: dict, src: Path, out: Path) -> dict:
     return summary
 
 
+def simulation_configs(params: dict) -> tuple:
+    """``(sensor, degrade)`` the study simulates with: the params sections, or the fitted ones
+    of a calibration report when ``study.degrade_from`` names one."""
+    sensor, base = section(params, "sensor"), section(params, "degrade")
+    study = section(params, "study")
+    if study.degrade_from:
+        from rdnet.study.config import calibrated_configs
+        sensor, base = calibrated_configs(study.degrade_from)
+        log.info("sensor and degradation from the calibration %s", study.degrade_from)
+    return sensor, base
+
+
 def simulate_sequences(params: dict, scenes: Path, interp: Path, out: Path, splits=SPLITS,
                        fixed_scale: float | None = None) -> dict:
     """Paired ideal/degraded events of every sequence; the degradation of each sequence is
@@ -160,14 +172,8 @@ def simulate_sequences(params: dict, scenes: Path, interp: Path, out: Path, spli
     ``study.degrade_from`` swaps in a calibration report's fitted sensor + degradation.
     ``fixed_scale``: every active effect of every sequence at exactly ``fixed_scale`` x
     ``degrade`` instead of the randomized draw (the stress test); ``splits``: which splits."""
-    sensor = section(params, "sensor")
-    base = section(params, "degrade")
+    sensor, base = simulation_configs(params)
     rand = section(params, "randomize")
-    study = section(params, "study")
-    if study.degrade_from:
-        from rdnet.study.config import calibrated_configs
-        sensor, base = calibrated_configs(study.degrade_from)
-        log.info("sensor and degradation from the calibration %s", study.degrade_from)
     summary = {}
     for split in splits:
         (out / split).mkdir(parents=True, exist_ok=True)

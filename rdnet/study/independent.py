@@ -7,8 +7,9 @@ the truth and the degraded stream both come from the independent circuit generat
 :mod:`rdnet.circuit` (a continuous-time photoreceptor / source-follower / comparator model that
 shares no code with rdnet's simulator), driven by the frames of the study's test sequences:
 
-* undegraded: the circuit at the nominal ``sensor`` thresholds with nothing else (``i_dark`` =
-  ``sensor.log_eps``, infinite bandwidth, no noise, no refractory hold);
+* undegraded: the circuit at the nominal thresholds of the study's sensor (``sensor``, or the
+  fitted one of ``study.degrade_from``) with nothing else (``i_dark`` = ``log_eps``, infinite
+  bandwidth, no noise, no refractory hold);
 * degraded: the circuit with each sequence's own test degradation where the circuit has a
   counterpart (:func:`rdnet.circuit.from_degrade`: threshold mismatch and ON/OFF ratio, its
   photoreceptor bandwidth for ``cutoff_hz``, refractory hold, shot noise, leak, hot pixels,
@@ -38,7 +39,7 @@ from rdnet.circuit import from_degrade, generate
 from rdnet.config import from_dict, section
 from rdnet.events.io.hdf5 import H5RecordingWriter, read_events, read_recording
 from rdnet.sim.settings import DegradeConfig
-from rdnet.study.data import make_pairs, sequences
+from rdnet.study.data import make_pairs, sequences, simulation_configs
 from rdnet.study.rows import EVENT_KEYS, evaluate_ablation_row, restoration_table, seed_spread
 
 log = logging.getLogger(__name__)
@@ -87,7 +88,7 @@ def circuit_restoration(params: dict, events_dir: Path, learned: dict[str, Path]
                  "degradation through rdnet.circuit.from_degrade (no readout period)")
     if draws == 0:               # switched off (study.circuit_draws: 0)
         return {"generator": generator, "draws": 0, "seed": seed, "events": {}, "rows": {}, "sequences": []}
-    sensor, restore = section(params, "sensor"), section(params, "restore")
+    sensor, restore = simulation_configs(params)[0], section(params, "restore")   # the study's thresholds
     files = sequences(events_dir, "test")
     if not files:
         from rdnet.errors import ConfigError

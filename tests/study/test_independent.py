@@ -69,3 +69,18 @@ def test_zero_draws_switch_the_check_off(study):
     from rdnet.study.config import StudyConfig
     with pytest.raises(ConfigError, match="circuit_draws"):
         StudyConfig(circuit_draws=-1)
+
+
+def test_the_circuit_uses_the_study_sensor(study, tmp_path):
+    """With study.degrade_from the study simulates with a calibration's fitted sensor, and so
+    does the circuit check (its nominal thresholds)."""
+    import json
+    from rdnet.study.data import simulation_configs
+    params, _ = study
+    assert simulation_configs(params)[0] == section(params, "sensor")
+    rep = tmp_path / "report.json"
+    rep.write_text(json.dumps({"fitted_config": {"sensor": {"threshold_on": 0.31, "threshold_off": 0.27},
+                                                 "degrade": {"latency_us": 100.0}}}))
+    fitted = load_params(None, base={**params, "study": {**params["study"], "degrade_from": str(rep)}})
+    sensor, degrade = simulation_configs(fitted)
+    assert (sensor.threshold_on, sensor.threshold_off, degrade.latency_us) == (0.31, 0.27, 100.0)
