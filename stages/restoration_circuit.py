@@ -17,7 +17,7 @@ def main(args, params):
     learned = {k: Path(v) for k, v in LEARNED_RESTORERS.items() if Path(v).exists()}
     ablation = section(params, "ablation")
     rows = tuple(r for r in ablation.rows if not ablation.row(r).checkpoint or Path(ablation.row(r).checkpoint).exists())
-    res = circuit_restoration(params, args.events_dir.parent, learned, draws=section(params, "study").circuit_draws,
+    res = circuit_restoration(params, args.events, learned, draws=section(params, "study").circuit_draws,
                               seed=int(params.get("seed", 0)), ednccn=args.ednccn if args.ednccn.exists() else None,
                               rows=rows)
     _common.write_json(args.out, res)
@@ -27,7 +27,7 @@ def main(args, params):
 
 
 p = _common.parser(__doc__)
-p.add_argument("--events-dir", type=Path, default=Path("data/events/test"))
+p.add_argument("--events", type=Path, default=Path("data/events"), help="the study's event files (test split read)")
 p.add_argument("--ednccn", type=Path, default=Path("models/ednccn"))
 p.add_argument("--study", type=Path, default=Path("metrics/restoration.json"),
                help="the simulated split's table, quoted beside (optional)")

@@ -37,9 +37,10 @@ import numpy as np
 
 from rdnet.circuit import from_degrade, generate
 from rdnet.config import from_dict, section
-from rdnet.events.io.hdf5 import H5RecordingWriter, read_events, read_recording
+from rdnet.events.io.hdf5 import H5EventReader, H5RecordingWriter, read_frames, read_header
 from rdnet.sim.settings import DegradeConfig
 from rdnet.study.data import make_pairs, sequences, simulation_configs
+from rdnet.study.report import paired_gap
 from rdnet.study.rows import EVENT_KEYS, evaluate_ablation_row, restoration_table, seed_spread
 
 log = logging.getLogger(__name__)
@@ -56,24 +57,40 @@ def circuit_file(src: Path, dst: Path, sensor, seed: int) -> dict:
     """Write ``dst``: the frames and attributes of the study's event file ``src`` with events
     from the circuit generator, ``events_ideal`` (nominal thresholds only) and ``events``
     (``src``'s own degradation, without the readout period). Returns the event counts of both
-    generators."""
-    rec = read_recording(src)
-    frames = rec.require_frames(str(src))
-    deg = from_dict(DegradeConfig, json.loads(rec.attrs["degrade_json"]), "degrade", src)
+    generators (the simulator's from the file's index, without reading its events)."""
+    width, height, _, attrs = read_header(src)
+    frames = read_frames(src)
+    deg = from_dict(DegradeConfig, json.loads(attrs["degrade_json"]), "degrade", src)
     rng = np.random.default_rng(seed)
     ideal = generate(frames.images, frames.t_us, from_degrade(sensor, DegradeConfig()), rng)
     degraded = generate(frames.images, frames.t_us,
                         from_degrade(sensor, dataclasses.replace(deg, sample_period_us=0.0)), rng)
-    with H5RecordingWriter(dst, rec.width, rec.height, sensor="rdnet-circuit") as w:
+    with H5RecordingWriter(dst, width, height, sensor="rdnet-circuit") as w:
         w.write_frames(frames)
         w.append_events(ideal, group="events_ideal")
         w.append_events(degraded, group="events")
         for key in CARRIED_ATTRS:
-            if key in rec.attrs:
-                w.set_attr(key, rec.attrs[key])
+            if key in attrs:
+                w.set_attr(key, attrs[key])
+    with H5EventReader(src, "events_ideal") as u, H5EventReader(src, "events") as d:
+        simulated = {"undegraded": len(u), "degraded": len(d)}
     return {"sequence": src.name, "circuit": {"undegraded": len(ideal), "degraded": len(degraded)},
-            "simulator": {"undegraded": len(read_events(src, group="events_ideal")),
-                          "degraded": len(rec.require_events(str(src)))}}
+            "simulator": simulated}
+
+
+def circuit_pairs(params: dict, files: list[Path], work: Path, seed: int) -> tuple[Path, list[dict]]:
+    """One draw: every study event file of ``files`` rendered by :func:`circuit_file` into
+    ``work/events/test`` and made into ``work/pairs/test.h5`` by the blur stage's code.
+    Returns the pairs file and the event counts per sequence."""
+    sensor = simulation_configs(params)[0]          # the study's thresholds
+    (work / "events" / "test").mkdir(parents=True, exist_ok=True)
+    counts = [circuit_file(src, work / "events" / "test" / src.name, sensor, seed + i) for i, src in enumerate(files)]
+    for c in counts:
+        log.info("%s: circuit %d undegraded / %d degraded events (simulator %d / %d)", c["sequence"],
+                 c["circuit"]["undegraded"], c["circuit"]["degraded"], c["simulator"]["undegraded"],
+                 c["simulator"]["degraded"])
+    make_pairs(params, work / "events", work / "pairs", splits=("test",))
+    return work / "pairs" / "test.h5", counts
 
 
 def circuit_restoration(params: dict, events_dir: Path, learned: dict[str, Path], *, draws: int = 3,
@@ -88,7 +105,7 @@ def circuit_restoration(params: dict, events_dir: Path, learned: dict[str, Path]
                  "degradation through rdnet.circuit.from_degrade (no readout period)")
     if draws == 0:               # switched off (study.circuit_draws: 0)
         return {"generator": generator, "draws": 0, "seed": seed, "events": {}, "rows": {}, "sequences": []}
-    sensor, restore = simulation_configs(params)[0], section(params, "restore")   # the study's thresholds
+    restore, ablation, seeds = section(params, "restore"), section(params, "ablation"), section(params, "study").seeds
     files = sequences(events_dir, "test")
     if not files:
         from rdnet.errors import ConfigError
@@ -96,23 +113,13 @@ def circuit_restoration(params: dict, events_dir: Path, learned: dict[str, Path]
     tables, counts, row_runs = [], [], []
     for draw in range(draws):
         with tempfile.TemporaryDirectory() as tmp:
-            work = Path(tmp)
-            (work / "events" / "test").mkdir(parents=True)
-            drawn = [circuit_file(src, work / "events" / "test" / src.name, sensor, 1000 * (seed + draw) + i)
-                     for i, src in enumerate(files)]
-            for c in drawn:
-                log.info("draw %d, %s: circuit %d undegraded / %d degraded events (simulator %d / %d)", draw,
-                         c["sequence"], c["circuit"]["undegraded"], c["circuit"]["degraded"],
-                         c["simulator"]["undegraded"], c["simulator"]["degraded"])
+            pairs, drawn = circuit_pairs(params, files, Path(tmp), 1000 * (seed + draw))
             counts.append(drawn)
-            make_pairs(params, work / "events", work / "pairs", splits=("test",))
-            tables.append(restoration_table(section(params, "ablation"), work / "pairs" / "test.h5",
-                                            work / "events" / "test", learned, seeds=section(params, "study").seeds,
-                                            baf_dt_us=restore.baf_dt_us, gef_bins=restore.gef_bins, ednccn=ednccn))
+            events = Path(tmp) / "events" / "test"
+            tables.append(restoration_table(ablation, pairs, events, learned, seeds=seeds, baf_dt_us=restore.baf_dt_us,
+                                            gef_bins=restore.gef_bins, ednccn=ednccn))
             if rows:
-                ablation = section(params, "ablation")
-                row_runs.append({r: evaluate_ablation_row(ablation, r, work / "pairs" / "test.h5", work / "events" / "test",
-                                                          seeds=section(params, "study").seeds) for r in rows})
+                row_runs.append({r: evaluate_ablation_row(ablation, r, pairs, events, seeds=seeds) for r in rows})
     methods = {}
     for name in tables[0]:
         if "events" not in tables[0][name]:
@@ -126,23 +133,18 @@ def circuit_restoration(params: dict, events_dir: Path, learned: dict[str, Path]
 
 
 def row_summary(runs: list[dict[str, dict]]) -> dict:
-    """Per row, over the draws ``runs`` (each: row id -> :func:`evaluate_ablation_row`):
-    ``psnr`` (mean over draws and seeds), ``psnr_seeds`` (per seed, mean over the draws),
-    ``psnr_draw_std`` (spread of the draws' seed means) and, for a trained row beside
-    :data:`BASE_ROW`, ``gap_vs_row2`` / ``gap_vs_row2_std`` / ``gap_vs_row2_seeds``: its PSNR
-    minus row 2's, paired by seed, mean and sample spread over the seeds."""
+    """Per row, over the draws ``runs`` (each: row id -> :func:`evaluate_ablation_row`), in
+    the layout of ``results/rows/<row>.json`` (so :func:`rdnet.study.report.paired_gap` pairs
+    them by seed as it does the study's rows): ``psnr_seeds`` (per seed, mean over the draws),
+    ``psnr`` and ``psnr_std`` (their mean and sample spread), ``seeds``, and ``psnr_draw_std``
+    (the spread of the draws' seed means)."""
     out = {}
     for row in runs[0]:
         per_draw = np.array([r[row].get("psnr_seeds") or [r[row]["psnr"]] for r in runs], float)   # (draws, seeds)
-        seeds = per_draw.mean(0)
-        entry = {"psnr": float(seeds.mean()), "psnr_seeds": seeds.tolist(), "seeds": runs[0][row]["seeds"],
-                 "psnr_draw_std": float(np.std(per_draw.mean(1), ddof=1)) if len(runs) > 1 else 0.0}
-        base = runs[0].get(BASE_ROW)
-        if base is not None and row != BASE_ROW and runs[0][row]["seeds"] and runs[0][row]["seeds"] == base["seeds"]:
-            gap = seeds - np.array([r[BASE_ROW]["psnr_seeds"] for r in runs], float).mean(0)
-            entry.update(gap_vs_row2=float(gap.mean()), gap_vs_row2_std=seed_spread(gap.tolist()),
-                         gap_vs_row2_seeds=gap.tolist())
-        out[row] = entry
+        per_seed = per_draw.mean(0)
+        out[row] = {"psnr": float(per_seed.mean()), "psnr_std": seed_spread(per_seed), "psnr_seeds": per_seed.tolist(),
+                    "seeds": runs[0][row]["seeds"],
+                    "psnr_draw_std": float(np.std(per_draw.mean(1), ddof=1)) if len(runs) > 1 else 0.0}
     return out
 
 
@@ -178,17 +180,18 @@ def markdown(result: dict, study: dict | None = None, study_rows: dict | None = 
                   "own test split (`results/rows/<row>.json`).", "",
                   "| row | PSNR | gap to row 2 |", "|---|---:|---:|"]
         study_rows = study_rows or {}
-        for row, r in result["rows"].items():
+        circuit = result["rows"]
+
+        def gap(rows_: dict, row: str) -> str | None:     # paired by seed, trained rows beside row 2 only
+            a, b = rows_.get(row), rows_.get(BASE_ROW)
+            if row == BASE_ROW or not a or not b or not a.get("seeds") or a["seeds"] != b.get("seeds"):
+                return None
+            g = paired_gap(a, b)
+            return f"{g['mean']:+.2f} ± {g['std']:.2f}"
+        for row, r in circuit.items():
             s_row = study_rows.get(row, {})
-            spread = seed_spread(r["psnr_seeds"]) if len(r["psnr_seeds"]) > 1 else 0.0
-            psnr = f"{r['psnr']:.2f}" + (f" ± {spread:.2f}" if len(r["psnr_seeds"]) > 1 else "")
+            psnr = f"{r['psnr']:.2f}" + (f" ± {r['psnr_std']:.2f}" if len(r["seeds"]) > 1 else "")
             psnr += f" ({s_row['psnr']:.2f})" if "psnr" in s_row else ""
-            gap = ""
-            if "gap_vs_row2" in r:
-                gap = f"{r['gap_vs_row2']:+.2f} ± {r['gap_vs_row2_std']:.2f}"
-                base = study_rows.get(BASE_ROW, {})
-                if s_row.get("psnr_seeds") and base.get("psnr_seeds") and len(s_row["psnr_seeds"]) == len(base["psnr_seeds"]):
-                    sg = np.array(s_row["psnr_seeds"]) - np.array(base["psnr_seeds"])
-                    gap += f" ({sg.mean():+.2f} ± {seed_spread(sg.tolist()):.2f})"
-            lines.append(f"| {row} | {psnr} | {gap} |")
+            g, sg = gap(circuit, row), gap(study_rows, row)
+            lines.append(f"| {row} | {psnr} | {(g or '') + (f' ({sg})' if g and sg else '')} |")
     return "\n".join(lines) + "\n"

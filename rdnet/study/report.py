@@ -118,14 +118,8 @@ def _circuit_psnr(r: dict | None) -> str:
     """Mean ± seed spread of a ``restoration_circuit`` row ("-" when it was not scored)."""
     if not r:
         return "-"
-    per_seed = r.get("psnr_seeds") or []
-    return _pm({"psnr": r["psnr"], "seeds": r.get("seeds") or [],
-                "psnr_std": _seed_std(per_seed) if len(per_seed) > 1 else None}, "psnr", "{:.2f}")
-
-
-def _seed_std(values) -> float:
-    import numpy as np
-    return float(np.std(np.asarray(values, float), ddof=1))
+    from rdnet.study.rows import seed_spread
+    return _pm({"psnr_std": seed_spread(r.get("psnr_seeds") or []), **r}, "psnr", "{:.2f}")
 
 
 def gaps_frame(rows: dict, circuit: dict | None = None):
