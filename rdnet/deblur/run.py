@@ -36,7 +36,7 @@ from rdnet.deblur.config import DeblurConfig
 from rdnet.deblur.consistency import BETTER, METRIC, LogFrames, compare_consistency
 from rdnet.deblur.network import LoadedRDNet, load_rdnet, resolve_checkpoint
 from rdnet.deblur.pipeline import FrameWindows, choose_windows, interval_windows, iter_deblur, network_images
-from rdnet.errors import ConfigError, FormatError
+from rdnet.errors import FormatError
 from rdnet.events.core import Events, concatenate
 from rdnet.events.recording import Frames
 from rdnet.events.voxel_config import VoxelConfig

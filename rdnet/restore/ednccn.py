@@ -287,12 +287,6 @@ def _window_data(pairs_path: Path, events_dir: Path, rows: np.ndarray, cfg: Ednc
     return cat[0], cat[1], cat[2], cat[3], ref
 
 
-def _device(name: str, key: str) -> torch.device:
-    """:func:`rdnet.train.loop.resolve_device`, its error naming the caller's params key."""
-    from rdnet.train.loop import resolve_device
-    return resolve_device(name, key=key)
-
-
 def train_ednccn(cfg: EdnccnConfig, pairs_path: str | Path, events_dir: str | Path, out: str | Path, *,
                  progress: bool = True) -> dict:
     """Train the classifier on the training pairs/events, fit the keep threshold on the
@@ -318,7 +312,8 @@ def _train(cfg: EdnccnConfig, pairs_path, events_dir, out, progress: bool) -> di
     pairs_path, events_dir = Path(pairs_path), Path(events_dir)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
-    device = _device(cfg.device, "ednccn.device")
+    from rdnet.train.loop import resolve_device
+    device = resolve_device(cfg.device, key="ednccn.device")
     rng = np.random.default_rng(cfg.seed)
     torch.manual_seed(cfg.seed)
     try:
@@ -428,6 +423,7 @@ def load_ednccn(checkpoint: str | Path | None = None, *, device: str = "cpu",
     is missing, unreadable or not an EDnCNN checkpoint."""
     from rdnet.restore.learned import _checkpoint_file, _fail
     from rdnet.train.checkpoint import read_checkpoint
+    from rdnet.train.loop import resolve_device
     where = Path(checkpoint) if checkpoint is not None else STUDY_MODEL
     path = _checkpoint_file(where)
     if path is None:
@@ -452,5 +448,5 @@ def load_ednccn(checkpoint: str | Path | None = None, *, device: str = "cpu",
     if not isinstance(tau, int) or tau <= 0:
         raise _fail(path, "extra.tau_us", f"must be a positive int, got {tau!r}")
     log.info("EDnCNN classifier %s (threshold %.4f)", path, decision["threshold"])
-    return EdnccnRestorer(net, tau, decision["threshold"], device=_device(device, device_key), source=str(path),
+    return EdnccnRestorer(net, tau, decision["threshold"], device=resolve_device(device, key=device_key), source=str(path),
                           info={"val_metrics": decision.get("val_metrics"), "train": ck.get("config")})

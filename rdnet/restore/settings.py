@@ -24,9 +24,7 @@ class RestoreConfig:
     ``gef_eps`` and ``gef_bins`` (time bins of the window voxel grid GEF filters);
     ``gef_mode``: mask (keep the events of the pixels GEF supports, unchanged) or filter
     (the guided-filtered signed voxel grid rounded back to events: times move to the bins).
-    ``device``: for the learned restorer, which restores one window at a time (a
-    ``batch_size`` key, never used, was removed: batching 8 windows saved 11 % a window on
-    CPU in a micro-benchmark of the image-guided network). ``esr_interval_us``: packet length
+    ``device``: for the learned restorer (one window at a time). ``esr_interval_us``: packet length
     of the ESR no-reference score (E-MLB uses 33 ms); ``scores``: compute the no-reference
     scores at all (false: faster, OUT.json has counts only); ``score_max_events``: event-frame
     consistency is scored only when the raw stream has at most this many events (it is
