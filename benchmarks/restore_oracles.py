@@ -18,15 +18,19 @@ some kind of restorer could reach:
   occupancy threshold swept over the test split (the fitted one matches the validation count).
 
 Nothing is trained; the oracles read ``data/pairs/test.h5`` (``dvc repro blur``) and the study's
-checkpoint. Writes ``benchmarks/results/restore_oracles.{json,md}``.
+checkpoint. Writes ``benchmarks/results/restore_oracles.{json,md}``. With ``--circuit`` the same
+on the test split rendered by the independent circuit generator (one draw of
+:func:`rdnet.study.independent.circuit_pairs`, as stage ``restoration_circuit`` renders it):
+``benchmarks/results/restore_oracles_circuit.{json,md}``.
 
-    .venv/bin/python benchmarks/restore_oracles.py
+    .venv/bin/python benchmarks/restore_oracles.py [--circuit]
 """
 from __future__ import annotations
 
 import argparse
 import json
 import logging
+import tempfile
 from pathlib import Path
 
 import h5py
@@ -34,14 +38,10 @@ import numpy as np
 from scipy.ndimage import maximum_filter
 
 from rdnet.eval.events import match_metrics
+from rdnet.study.rows import count_grids
 
 ROOT = Path(__file__).resolve().parents[1]
 log = logging.getLogger("restore_oracles")
-
-
-def counts_of(f: h5py.File, which: str) -> np.ndarray:
-    """(N, 2, bins, H, W) int64 per-polarity counts, ON first (as ``rdnet.study.rows``)."""
-    return np.rint(np.stack([np.asarray(f[f"voxel_{which}_on"]), np.asarray(f[f"voxel_{which}_off"])], 1)).astype(np.int64)
 
 
 def near(occupied: np.ndarray, bins: int, pixels: int) -> np.ndarray:
@@ -68,11 +68,30 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--pairs", type=Path, default=ROOT / "data" / "pairs" / "test.h5")
     ap.add_argument("--checkpoint", type=Path, default=ROOT / "models" / "rdnet" / "seed0" / "model.pt")
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "restore_oracles.json")
+    ap.add_argument("--circuit", action="store_true",
+                    help="render the test split with the independent circuit generator first (data/events/test)")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="default benchmarks/results/restore_oracles[_circuit].json")
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    results = ROOT / "benchmarks" / "results"
+    if args.out is None:
+        args.out = results / ("restore_oracles_circuit.json" if args.circuit else "restore_oracles.json")
+    with tempfile.TemporaryDirectory() as tmp:
+        split = "simulated test split"
+        if args.circuit:
+            from rdnet.config import load_params
+            from rdnet.study.data import sequences
+            from rdnet.study.independent import circuit_pairs
+            params = load_params(ROOT / "params.yaml")
+            args.pairs = circuit_pairs(params, sequences(ROOT / "data" / "events", "test"), Path(tmp), 0)[0]
+            split = "test split rendered by the independent circuit generator (one draw)"
+        return oracles(args, split)
+
+
+def oracles(args, split: str) -> int:
     with h5py.File(args.pairs, "r") as f:
-        u, d = counts_of(f, "undegraded"), counts_of(f, "degraded")
+        u, d = count_grids(f, "undegraded"), count_grids(f, "degraded")
     raw_occ = d.sum(1) > 0                                    # (N, bins, H, W): a raw event of either polarity
     rows = []
 
@@ -125,13 +144,13 @@ def main() -> int:
     raw_l1 = rows[0]["voxel_l1_all"]
     for r in rows:
         r["l1_vs_raw_pct"] = 100.0 * (r["voxel_l1_all"] / raw_l1 - 1.0)
-    out = {"pairs": str(args.pairs.relative_to(ROOT) if args.pairs.is_relative_to(ROOT) else args.pairs),
+    out = {"split": split, "pairs": str(args.pairs.relative_to(ROOT) if args.pairs.is_relative_to(ROOT) else args.pairs),
            "samples": int(u.shape[0]), "undegraded_events": int(u.sum()), "raw_events": int(d.sum()),
            "undegraded_share_in_voxels_without_raw_event": share_far, "goal_l1_all": 0.7 * raw_l1,
            "rows": rows, "restorer_counts": detail}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(out, indent=2) + "\n")
-    lines = ["# Oracle restorations of the simulated test split (`benchmarks/restore_oracles.py`)", "",
+    lines = [f"# Oracle restorations of the {split} (`benchmarks/restore_oracles.py`)", "",
              f"{out['samples']} samples, {out['undegraded_events']:,} undegraded and {out['raw_events']:,} raw events; "
              f"{100 * share_far:.1f} % of the undegraded events lie in voxels without a raw event. "
              f"Goal of issue 11: all-voxel L1 <= {out['goal_l1_all']:.4f} (30 % below raw).", "",

@@ -245,6 +245,13 @@ def mean_over_seeds(results: list[dict]) -> dict:
     return float(np.mean(vals))
 
 
+def count_grids(f, which: str) -> np.ndarray:
+    """(N, 2, bins, H, W) int64 per-polarity event counts of an open pairs file, ON first:
+    ``voxel_<which>_on`` / ``_off`` (``which``: undegraded or degraded)."""
+    return np.rint(np.stack([np.asarray(f[f"voxel_{which}_on"]), np.asarray(f[f"voxel_{which}_off"])], 1)
+                   ).astype(np.int64)
+
+
 def seed_spread(values) -> float:
     """Sample standard deviation (ddof 1) of per-seed values; 0 for a single seed."""
     v = np.asarray(values, np.float64)
@@ -353,9 +360,7 @@ def restoration_table(cfg: AblationConfig, pairs_path: Path, events_dir: Path,
         degrade = {k: np.asarray(f["degrade"][k]) for k in f["degrade"]} if "degrade" in f else {}
         has_counts = "voxel_undegraded_on" in f
         if has_counts:
-            cu = np.stack([np.asarray(f["voxel_undegraded_on"]), np.asarray(f["voxel_undegraded_off"])], 1)
-            cd = np.stack([np.asarray(f["voxel_degraded_on"]), np.asarray(f["voxel_degraded_off"])], 1)
-            cu, cd = np.rint(cu).astype(np.int64), np.rint(cd).astype(np.int64)
+            cu, cd = count_grids(f, "undegraded"), count_grids(f, "degraded")
     idx = np.arange(len(u))
     labels = M.dominant_degradation(degrade) if degrade else None
 
