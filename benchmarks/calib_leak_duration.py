@@ -6,7 +6,7 @@ with the "real" sensor started as a running one (5 s on the first frame held sti
 of :func:`rdnet.calib.proof.make_recording`) and the calibration's warm-up on
 (``calibrate.warmup_us`` 3 s), at each recording length. Each length runs the same cases
 from the same seed, so only the length differs. Writes
-``benchmarks/results/calib_leak_duration.{json,md}`` (README "Stationary truths").
+``benchmarks/results/calib_leak_duration.{json,md}`` (docs/calibration.md "Stationary truths").
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/calib_leak_duration.py --workers 2
 """

@@ -11,7 +11,7 @@ set, next to the committed study (``results/rows``). Needs the study's data firs
     .venv/bin/python benchmarks/study_regimes.py --report-only      # table + figure, after `dvc repro`
 
 Results are merged variant by variant into ``benchmarks/results/rdnet_regimes.json``, with
-``rdnet_regimes.md`` (the table the README quotes) and ``rdnet_regimes.png``. Networks
+``rdnet_regimes.md`` (the table docs/study.md quotes) and ``rdnet_regimes.png``. Networks
 live in ``data/regimes/<variant>/models`` (not in git); a rerun resumes or skips them.
 """
 from __future__ import annotations

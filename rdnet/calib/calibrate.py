@@ -362,7 +362,7 @@ def noise_floor(obj: Objective, values: dict) -> float:
     return float(np.mean([st.discrepancy(a, b, obj.ctx)[0] for a, b in combinations(held, 2)]))
 
 
-#: what would tell a pair of look-alike effects apart (README "What is still open (issue 12)")
+#: what would tell a pair of look-alike effects apart (docs/calibration.md "What is still open (issue 12)")
 SEPARATING_MEASUREMENTS = (
     ({"refractory_period", "readout_saturation"},
      "a fine-binned inter-event-interval histogram of the busiest pixels (a refractory period leaves "
@@ -412,7 +412,7 @@ def caveats(name: str, params: dict, degrade: DegradeConfig, interpolation: str 
     One per tuning parameter (``Effect.tuning``) fitted away from its declared value by more
     than :data:`TUNING_MOVED`, from :data:`TUNING_LOOK_ALIKES`. The bandwidth's dark-current
     floor sets how much slower the darkest pixels are, and a frame interpolation that errs in
-    the dark part of the scene moves the dark pixels' events the same way (README "Bandwidth:
+    the dark part of the scene moves the dark pixels' events the same way (docs/calibration.md "Bandwidth:
     the dark current is fitted": in the proof's block whose truths come from 4x denser frames,
     the true floor 0.078 was fitted as 0.025-0.061 while the held-out discrepancy fell)."""
     eff = EFFECTS.get(name)

@@ -67,7 +67,7 @@ class CalibrateConfig:
     the pixels that move in the recording between the thresholds again
     (:func:`rdnet.calib.engine.start`): a real recording starts from a sensor that has been
     running, whose static pixels sit where leak drift and noise resets left them (0, the
-    default = start at the reference above; README "The warm-up" has what 3 s did on the
+    default = start at the reference above; docs/calibration.md "The warm-up" has what 3 s did on the
     proof).
     """
 

@@ -63,7 +63,7 @@ Effects and the sources they follow:
   (``hot_pixel_on_fraction`` m, ``hot_pixel_polarity_concentration`` k): hot pixel i fires ON
   with probability ``q_i ~ Beta(k m, k (1 - m))``; k = 0 (default) is the limit where each
   hot pixel has one fixed polarity, ON with probability m (default 1/2). Real hot pixels
-  mostly fire both polarities, leaning ON (DVXplorer: 29 of 34, m 0.66, k 2.9; README
+  mostly fire both polarities, leaning ON (DVXplorer: 29 of 34, m 0.66, k 2.9; docs/calibration.md
   "Hot-pixel polarity").
 * ``jitter_us`` s and ``latency_us`` d (v2e Sec. 3.4 timestamp jitter; DVS-Voltmeter):
   ``t' = t + round(d + s z)``, ``z ~ N(0, 1)`` truncated to [-4, 4] (clipped: the mass

@@ -71,7 +71,7 @@ class DegradeConfig:
                           whose dark current is also its log offset has ``sensor.log_eps``).
     ``hot_pixel_on_fraction``  mean share of ON events among the hot pixels' events (0.5:
                           balanced; real hot pixels lean ON: 0.69 on a DVXplorer recording,
-                          README "Hot-pixel polarity").
+                          docs/calibration.md "Hot-pixel polarity").
     ``hot_pixel_polarity_concentration``  how alike the hot pixels' ON shares are: hot pixel
                           i fires ON with probability q_i ~ Beta(k m, k (1 - m)) (k this value,
                           m ``hot_pixel_on_fraction``); 0: each hot pixel fires one polarity, ON

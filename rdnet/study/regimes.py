@@ -1,7 +1,7 @@
 """Regime sweep of the RDNet row: where does restoring events pay off for deblurring?
 
 The paper (Sec. 4.3, Tab. 3) finds RDNet (row 3) 0.51 dB above a DeblurNet trained on
-degraded events (row 2); the embedded study does not reproduce it (README, "Investigation
+degraded events (row 2); the embedded study does not reproduce it (docs/study.md, "Investigation
 of the RDNet row"). This module reruns the rows that decide the question under *one*
 change of params.yaml at a time (a :class:`Variant`: dotted ``--set`` overrides), every
 network once per seed of ``study.seeds``, and scores them on the study's own test set
@@ -59,7 +59,7 @@ class Variant:
     note: str = ""
 
 
-#: The regimes the README reports: one axis of the issue's list each.
+#: The regimes docs/study.md reports: one axis of the issue's list each.
 VARIANTS = {
     "data_x4": Variant(("scenes.n_train=48",), "4x the training scenes (428 samples; same test set)"),
     "width_16": Variant(("model.width=16",), "every network twice as wide (about 4x parameters)"),

@@ -45,7 +45,7 @@ class TrainConfig:
     weights detached there; the deblurring loss still trains them), so the term trains
     stage 1 only. True: F's weights get the term's gradient too; its target F(E_u) is
     detached, so F chases a moving target: in the study that term grew from about 0.07
-    to 1.0-23,800 in 6 of 9 RDNet trainings and to 0.1-0.2 in the other 3 (README,
+    to 1.0-23,800 in 6 of 9 RDNet trainings and to 0.1-0.2 in the other 3 (docs/study.md,
     "Investigation of the RDNet row").
     ``finetune_restore``: stage 2 also updates the stage-1 weights, at
     ``lr * restore_lr_scale``; false freezes them.

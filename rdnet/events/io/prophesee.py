@@ -30,7 +30,7 @@ the file is not already in order (the shared sample files are); an event earlier
 the previous unit's last one (not seen in practice) is clamped to that time and counted
 in a warning, so the stream stays time-sorted.
 
-Why not a third-party decoder: see README ("Prophesee formats") and
+Why not a third-party decoder: see docs/cli.md ("Prophesee formats") and
 ``benchmarks/bench_formats.py``.
 """
 from __future__ import annotations
