@@ -394,8 +394,8 @@ TUNING_LOOK_ALIKES = {
         "lower": "a lower floor slows the darkest pixels",
         "higher": "a higher floor speeds up the darkest pixels",
         "look_alike": "an error of {how} in the dark part of the scene shifts their events the same way",
-        "shown": "rdnet's proof shows it on recordings whose truth came from 4x denser frames: README, "
-                 "\"Bandwidth: the dark current is fitted\"",
+        "shown": "rdnet's proof shows it on recordings whose truth came from 4x denser frames: rdnet's "
+                 "docs/calibration.md, \"Bandwidth: the dark current is fitted\"",
         "measure": "the floor",
         "separate_with": "a still scene under a flashing LED at a few brightnesses; the delay of the events "
                          "after each step, against brightness, gives the cutoff at each intensity with no frame "
