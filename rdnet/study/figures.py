@@ -24,15 +24,16 @@ def sample_figure(params: dict, pairs_path: Path, out: Path, n: int = 4) -> Path
     return sample_grid(out, res["blurry"], res["voxel"], res["restored"], res["pred"], res["sharp"])
 
 
-def gap_figure(rows: dict, circuit: dict, out: Path, base: str = "degraded_train") -> Path:
+def gap_figure(rows: dict, circuit: dict, out: Path, base: str | None = None) -> Path:
     """Each trained row's PSNR gap to ``base`` (row 2), paired by seed, on rdnet's simulated
     test events (``rows``: ``results/rows/<row>.json``) beside the same networks on the events of
     the independent circuit generator (``circuit``: the ``rows`` of
-    ``metrics/restoration_circuit.json``); bars are means, error bars the seed spread."""
+    ``metrics/restoration_circuit.json``); bars are means, error bars the seed spread.
+    ``base``: default :data:`rdnet.study.report.BASE_ROW`."""
     from rdnet.eval.report import _figure, _save_figure
-    from rdnet.study.report import paired_gap
-    names = [r for r in rows if r != base and r in circuit and base in rows and base in circuit
-             and rows[r].get("seeds") and rows[r]["seeds"] == rows[base].get("seeds")]
+    from rdnet.study.report import BASE_ROW, paired_gap, seed_paired
+    base = base or BASE_ROW
+    names = [r for r in rows if r != base and r in circuit and base in circuit and seed_paired(rows[r], rows.get(base))]
     sim = [paired_gap(rows[r], rows[base]) for r in names]
     cir = [paired_gap(circuit[r], circuit[base]) for r in names]
     fig, ax = _figure(figsize=(max(5.0, 0.8 * len(names) + 2.0), 3.6))

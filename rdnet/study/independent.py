@@ -40,7 +40,7 @@ from rdnet.config import from_dict, section
 from rdnet.events.io.hdf5 import H5EventReader, H5RecordingWriter, read_frames, read_header
 from rdnet.sim.settings import DegradeConfig
 from rdnet.study.data import make_pairs, sequences, simulation_configs
-from rdnet.study.report import paired_gap
+from rdnet.study.report import BASE_ROW, paired_gap, seed_paired
 from rdnet.study.rows import EVENT_KEYS, evaluate_ablation_row, restoration_table, seed_spread
 
 log = logging.getLogger(__name__)
@@ -49,8 +49,6 @@ log = logging.getLogger(__name__)
 CARRIED_ATTRS = ("degradation_level", "degrade_json", "scene_background", "scene_spec", "scene_split")
 #: event metrics averaged over the draws (and given a spread)
 KEYS = tuple(k for k in EVENT_KEYS if k not in ("restored", "reference"))
-#: the row every trained row's PSNR gap is paired against (row 2 of the paper's ablation)
-BASE_ROW = "degraded_train"
 
 
 def circuit_file(src: Path, dst: Path, sensor, seed: int) -> dict:
@@ -184,7 +182,7 @@ def markdown(result: dict, study: dict | None = None, study_rows: dict | None = 
 
         def gap(rows_: dict, row: str) -> str | None:     # paired by seed, trained rows beside row 2 only
             a, b = rows_.get(row), rows_.get(BASE_ROW)
-            if row == BASE_ROW or not a or not b or not a.get("seeds") or a["seeds"] != b.get("seeds"):
+            if row == BASE_ROW or not seed_paired(a, b):
                 return None
             g = paired_gap(a, b)
             return f"{g['mean']:+.2f} ± {g['std']:.2f}"

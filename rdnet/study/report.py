@@ -74,6 +74,17 @@ def network_compute(checkpoint: str | None) -> dict | None:
     return out
 
 
+#: row 2 of the paper's ablation (DeblurNet trained on degraded events): the row the gaps
+#: figure and the independent generator's table pair every trained row against
+BASE_ROW = "degraded_train"
+
+
+def seed_paired(a: dict | None, b: dict | None) -> bool:
+    """Whether rows ``a`` and ``b`` (``results/rows/<row>.json`` layout) were both scored
+    on the same training seeds, so that :func:`paired_gap` pairs them seed by seed."""
+    return bool(a and b and a.get("seeds") and a["seeds"] == b.get("seeds"))
+
+
 def paired_gap(a: dict, b: dict) -> dict:
     """Row ``a`` minus row ``b`` in PSNR: the mean and sample spread of the per-seed
     differences when both rows share their seeds (paired), plus how many seeds agree in
@@ -115,7 +126,8 @@ def rows_frame(rows: dict, compute: dict, circuit: dict | None = None):
 
 
 def _circuit_psnr(r: dict | None) -> str:
-    """Mean ± seed spread of a ``restoration_circuit`` row ("-" when it was not scored)."""
+    """Mean ± seed spread of a ``restoration_circuit`` row ("-" when it was not scored; the
+    spread of its ``psnr_seeds`` when the row does not give ``psnr_std``)."""
     if not r:
         return "-"
     from rdnet.study.rows import seed_spread

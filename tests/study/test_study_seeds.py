@@ -128,3 +128,12 @@ def test_train_seeds_reuses_the_record_of_a_finished_run(tmp_path):
     assert [r["seed"] for r in first["runs"]] == [0, 1] and all("train_gflop" in r for r in first["runs"])
     again = train_seeds(net, study, cfg, ModelConfig(size="tiny", width=4), pairs, tmp_path / "m", progress=False)
     assert again["runs"] == first["runs"]          # finished: the measured record is kept, not re-timed
+
+
+def test_seed_paired_needs_the_same_seeds_on_both_rows():
+    from rdnet.study.report import seed_paired
+    a = {"psnr": 30.0, "psnr_seeds": [29.0, 31.0], "seeds": [0, 1]}
+    assert seed_paired(a, dict(a))
+    assert not seed_paired(a, {**a, "seeds": [0, 2]})            # other seeds: not paired
+    assert not seed_paired(a, {"psnr": 29.0})                     # an untrained row (no seeds)
+    assert not seed_paired(a, None) and not seed_paired(None, a)  # a row that was not scored
