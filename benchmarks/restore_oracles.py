@@ -59,7 +59,10 @@ def median_lookup(restored: np.ndarray, target: np.ndarray, keys: np.ndarray) ->
     occ = restored > 0
     k, t = keys[occ], target[occ]
     uniq, inv = np.unique(k, return_inverse=True)
-    med = np.array([np.median(t[inv == i]) for i in range(len(uniq))])
+    order = np.lexsort((t, inv))                  # grouped by key, each group sorted
+    ts, start = t[order], np.searchsorted(inv[order], np.arange(len(uniq)))
+    n = np.diff(np.r_[start, ts.size])
+    med = 0.5 * (ts[start + (n - 1) // 2] + ts[start + n // 2])    # np.median of each group
     out[occ] = np.rint(med[inv]).astype(np.int64)
     return out
 
