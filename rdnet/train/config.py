@@ -34,6 +34,11 @@ class TrainConfig:
     voxel, L1 masked to where events are) or ``counts`` (per-polarity counts with an
     occupancy head, loss on every voxel, :func:`rdnet.nn.losses.count_restoration_loss`;
     ``alpha`` then weights the count L1 and ``occupancy_weight`` the occupancy BCE).
+    ``clean_fraction`` (tasks restore, restore_events): the share of training samples whose
+    input events are the undegraded ones themselves (identity pairs, drawn per sample from
+    ``(seed, epoch, row)``): without them every stage-1 input has lost events, and the
+    restorer learns to add events to any stream, a clean one included (docs/restoration.md,
+    "A stream that needs no restoring"). 0 = the paper's training data.
     ``val_sequences``: the last sequences of the training file held out from stage-1
     training (tasks restore, restore_events) to fit the voxel -> event decision
     (:mod:`rdnet.nn.decision`); needed by ``counts`` (>= 1), 0 = train on every row.
@@ -71,6 +76,7 @@ class TrainConfig:
     empty_weight: float = 0.0
     restore_output: Literal["signed_masked", "counts"] = "signed_masked"
     occupancy_weight: float = 1.0
+    clean_fraction: float = 0.0
     val_sequences: int = 0
     stage2_input: Literal["restored", "dual"] = "restored"
     feature_grad: bool = False
@@ -102,6 +108,8 @@ class TrainConfig:
                     "restore_lr_scale", "num_workers", "threads", "seed", "occupancy_weight",
                     "val_sequences"):
             positive(f"train.{key}", getattr(self, key))
+        if not 0.0 <= self.clean_fraction < 1.0:
+            raise ConfigError("train.clean_fraction", f"must be in [0, 1), got {self.clean_fraction}")
         if self.restore_output not in RESTORE_OUTPUTS:
             raise ConfigError("train.restore_output", f"must be one of {', '.join(RESTORE_OUTPUTS)}, "
                               f"got {self.restore_output!r}")

@@ -178,6 +178,14 @@ def draw_augment(seed: int, epoch: int, index: int, height: int, width: int,
     return y0, x0, ch, cw, bool(flips[0]), bool(flips[1])
 
 
+def draw_clean(seed: int, epoch: int, index: int, fraction: float) -> bool:
+    """Whether sample ``(seed, epoch, index)`` is an identity pair (probability ``fraction``;
+    its own random stream, so the crops and flips of :func:`draw_augment` do not change)."""
+    if fraction <= 0.0:
+        return False
+    return bool(np.random.default_rng([int(seed), int(epoch), int(index), 1]).random() < fraction)
+
+
 class PairsDataset(Dataset):
     """Samples of a pairs file as dicts of tensors.
 
@@ -189,10 +197,12 @@ class PairsDataset(Dataset):
     None = full frame) and flips are drawn from ``(seed, epoch, row)`` (see
     :func:`draw_augment`); a crop larger than the frame is an error. ``rows``: the file
     rows this dataset serves (default all); ``dataset[i]`` is file row ``rows[i]``.
+    ``clean_fraction``: the share of samples (drawn by :func:`draw_clean`) whose degraded
+    events are replaced by the undegraded ones (``level`` 0): identity pairs for stage 1.
     """
 
     def __init__(self, path: str | Path, events: str = "degraded", crop: int | None = None,
-                 augment: bool = False, *, seed: int = 0, rows=None):
+                 augment: bool = False, *, seed: int = 0, rows=None, clean_fraction: float = 0.0):
         if events not in EVENT_KINDS:
             raise ConfigError("events", f"must be one of {list(EVENT_KINDS)}, got {events!r}")
         self.path = Path(path)
@@ -203,7 +213,10 @@ class PairsDataset(Dataset):
             if crop > min(self.info.height, self.info.width):
                 raise ConfigError("train.crop", f"{crop} is larger than the frames "
                                   f"({self.info.height}x{self.info.width}) of {self.path}")
+        if not 0.0 <= clean_fraction < 1.0:
+            raise ConfigError("clean_fraction", f"must be in [0, 1), got {clean_fraction}")
         self.events, self.crop, self.augment, self.seed = events, crop, bool(augment), int(seed)
+        self.clean_fraction = float(clean_fraction)
         self.rows = np.arange(self.info.n) if rows is None else np.asarray(rows, np.int64)
         if self.rows.size and (self.rows.min() < 0 or self.rows.max() >= self.info.n):
             raise ConfigError("rows", f"row out of range [0, {self.info.n}) of {self.path}")
@@ -272,8 +285,14 @@ class PairsDataset(Dataset):
         if self.info.has_counts:
             for kind in EVENT_KINDS:
                 out[f"counts_{kind}"] = torch.cat([out.pop(f"voxel_{kind}_on"), out.pop(f"voxel_{kind}_off")])
+        level = float(f["level"][at])
+        if draw_clean(self.seed, epoch, index, self.clean_fraction):
+            for name in ("voxel", "counts"):
+                if f"{name}_undegraded" in out:
+                    out[f"{name}_degraded"] = out[f"{name}_undegraded"].clone()
+            level = 0.0
         out["voxel"] = out[f"voxel_{self.events}"]
-        out["level"] = torch.tensor(float(f["level"][at]), dtype=torch.float64)
+        out["level"] = torch.tensor(level, dtype=torch.float64)
         out["index"] = torch.tensor(index, dtype=torch.int64)
         return out
 

@@ -378,7 +378,7 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
 
     rows, val_rows = split_rows(train_path, cfg.val_sequences if task in RESTORE_TASKS else 0)
     data = PairsDataset(train_path, events=events, crop=cfg.crop, augment=cfg.augment, seed=cfg.seed,
-                        rows=rows)
+                        rows=rows, clean_fraction=cfg.clean_fraction if task in RESTORE_TASKS else 0.0)
     counts = cfg.restore_output == "counts" and task in RESTORE_TASKS + ("rdnet",)
     if counts and not data.info.has_counts:
         raise FormatError(Path(train_path), "voxel_degraded_on", "train.restore_output counts needs the "

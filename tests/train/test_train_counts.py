@@ -119,3 +119,30 @@ def test_dual_stage2_starts_as_the_restored_only_rdnet_and_trains(noisy, tmp_pat
     assert "stage 2" in ck["extra"]["decision"]["refit"]          # refitted after fine-tuning stage 1
     p = predict("rdnet", path, noisy, device="cpu")
     assert p["pred"].shape == (10, 1, 24, 24) and np.isfinite(p["pred"]).all()
+
+
+def test_clean_fraction_serves_identity_pairs_without_moving_the_crops(noisy):
+    """train.clean_fraction: that share of samples (drawn per (seed, epoch, row)) has the
+    undegraded events as its input and level 0; the crops and flips stay those of fraction 0,
+    and fraction 0 serves the file unchanged."""
+    base = PairsDataset(noisy, crop=16, augment=True, seed=3)
+    mixed = PairsDataset(noisy, crop=16, augment=True, seed=3, clean_fraction=0.5)
+    clean = 0
+    for epoch in range(8):
+        for i in range(len(base)):
+            b, m = base[(i, epoch)], mixed[(i, epoch)]
+            np.testing.assert_array_equal(b["counts_undegraded"].numpy(), m["counts_undegraded"].numpy())
+            np.testing.assert_array_equal(b["blurry"].numpy(), m["blurry"].numpy())
+            assert not np.array_equal(b["counts_degraded"].numpy(), b["counts_undegraded"].numpy())
+            if np.array_equal(m["counts_degraded"].numpy(), m["counts_undegraded"].numpy()):
+                clean += 1
+                np.testing.assert_array_equal(m["voxel"].numpy(), m["voxel_undegraded"].numpy())
+                assert float(m["level"]) == 0.0
+            else:
+                np.testing.assert_array_equal(m["counts_degraded"].numpy(), b["counts_degraded"].numpy())
+                assert float(m["level"]) == float(b["level"])
+    assert 0.3 < clean / (8 * len(base)) < 0.7
+    with pytest.raises(ConfigError, match="clean_fraction"):
+        TrainConfig(**CFG, clean_fraction=1.0)
+    with pytest.raises(ConfigError, match="clean_fraction"):
+        PairsDataset(noisy, clean_fraction=-0.1)
