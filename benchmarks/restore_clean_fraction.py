@@ -1,0 +1,202 @@
+"""Identity pairs in stage-1 training (``train.clean_fraction``): a restorer that leaves a clean
+stream alone (issue 11, "no invented events").
+
+``benchmarks/consistency_validity.py`` found that the study's learned restorers, handed a
+simulated stream that needs no restoring (the undegraded events themselves), more than double
+its events and halve its F1, while every filter leaves it nearly unchanged: every training
+input had lost events (the degraded streams hold about 0.6 of the undegraded count at every
+strength), so the network adds events to whatever it is given. ``train.clean_fraction`` makes
+that share of the training samples identity pairs (input = target = the undegraded events).
+
+This script retrains both stage-1 restorers (image-guided ``restore`` and ``restore_events``;
+study ``model`` and ``train`` settings, 800 iterations, on ``data/pairs/train.h5``) at each
+``--fractions`` value (the value of ``params.yaml`` is the study's own committed checkpoints,
+``models/restore_*/seed<k>``, not retrained) and scores every variant on:
+
+* the simulated test split, with the study's event metrics (``restore_learned_eval.eval_pairs``);
+* ``consistency_validity`` recordings built from the test split (as ``rdnet restore`` runs on
+  them): the degraded streams (``rdnet``), the undegraded ones as input (``clean input``) and
+  one rendering by the independent circuit generator (``circuit``);
+* the real recordings of ``data/real`` and ``../shared/real`` (:func:`rdnet.restore.real.score_recording`,
+  as stage ``restore_real`` scores them: image-guided where the recording has frames,
+  events-only elsewhere).
+
+Writes ``benchmarks/results/restore_clean_fraction.{json,md}``.
+
+    .venv/bin/python benchmarks/restore_clean_fraction.py [--fractions 0 0.2 0.4] [--seeds 0]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+log = logging.getLogger("restore_clean_fraction")
+TASKS = {"image": "restore", "events": "restore_events"}
+STUDY_MODELS = {"image": "restore_image", "events": "restore_events"}
+
+
+def train(task: str, fraction: float, seed: int, out: Path) -> Path:
+    cmd = [sys.executable, "-m", "rdnet.train.run", "--task", task, "--train", str(ROOT / "data" / "pairs" / "train.h5"),
+           "--out", str(out), "--no-progress", "--params", str(ROOT / "params.yaml"),
+           "--set", f"train.seed={seed}", "--set", f"train.clean_fraction={fraction}",
+           "--set", "train.dvclive=false", "--set", "train.threads=1"]
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    subprocess.run(cmd, check=True, cwd=ROOT, env=env, stdout=subprocess.DEVNULL)
+    return out / "model.pt"
+
+
+def simulated_scores(params: dict, ckpts: dict[str, Path], tmp: Path) -> dict:
+    """consistency_validity's groups rdnet / clean input / circuit (one draw) for one variant."""
+    from consistency_validity import score_sequence, sources, summarize
+    methods = {f"rdnet-{kind}": ("rdnet", path) for kind, path in ckpts.items()}
+    per_seq = []
+    srcs = sources("rdnet", params, tmp, 0, ()) + sources("clean", params, tmp, 0, ()) + \
+        sources("circuit", params, tmp, 1, ())
+    for group, path in srcs:
+        work = tmp / "work"
+        work.mkdir(exist_ok=True)
+        rows = score_sequence(path, params, 10, work, "events_ideal" if group == "clean input" else "events", methods)
+        per_seq.append({"group": group, "sequence": path.name, "streams": rows})
+    return summarize(per_seq)
+
+
+def real_scores(params: dict, ckpts: dict[str, Path], tmp: Path) -> dict:
+    from rdnet.errors import FormatError
+    from rdnet.events.io import format_of
+    from rdnet.events.io.stream import open_events
+    from rdnet.restore.real import Run, read_facts, recordings, score_recording
+    facts = read_facts(ROOT / "stages" / "real_recordings.yaml")
+    out = {}
+    for name, path in recordings([ROOT / "data" / "real", ROOT.parent / "shared" / "real"]):
+        try:
+            format_of(path)
+            with open_events(path, sensor_size=facts.sensor_size.get(name)) as src:
+                has_frames = src.has_frames
+        except FormatError as e:
+            log.warning("skipping %s: %s", path, e)
+            continue
+        kind = "image" if has_frames else "events"
+        sc = score_recording(name, path, params, [Run("rdnet", "rdnet", checkpoint=ckpts[kind])], tmp / name,
+                             keep=False, facts=facts)
+        r = sc.entry["methods"]["rdnet"]
+        out[name] = {"restorer": kind, "kept": r["kept_fraction"], "consistency_r2": r["consistency_r2"],
+                     "esr": r["esr"], **{f"{k}_kept": v for k, v in r["regions"].items()}}
+        log.info("%s (%s): %s", name, kind, out[name])
+    return out
+
+
+def markdown(res: dict) -> str:
+    L = [f"Stage-1 restorers trained with identity pairs (`train.clean_fraction`; {res['command']}, "
+         f"{res['seconds'] / 60:.0f} min, seed(s) {res['seeds']}). {res.get('study_fraction', 0.0):g} = the study's "
+         "committed checkpoints when the script ran (`models/restore_*`), the others trained by it.", ""]
+    L += ["**Simulated test split** (the study's event metrics; image-guided / events-only)", "",
+          "| clean_fraction | seed | F1 | count ratio | all-voxel L1 | decision threshold |", "|---|---|---|---|---|---|"]
+    raw = res["raw_test"]
+    L.append(f"| raw | - | {raw['f1']:.3f} | {raw['count_ratio']:.2f} | {raw['l1_all']:.4f} | - |")
+    for v in res["variants"]:
+        t = v["test"]
+        L.append(f"| {v['fraction']:g} | {v['seed']} | {t['image']['f1']:.3f} / {t['events']['f1']:.3f} | "
+                 f"{t['image']['count_ratio']:.2f} / {t['events']['count_ratio']:.2f} | "
+                 f"{t['image']['l1_all']:.4f} / {t['events']['l1_all']:.4f} | "
+                 f"{t['image']['threshold']:.3f} / {t['events']['threshold']:.3f} |")
+    L += ["", "**Recordings built from the test split** (`rdnet restore` on the degraded events, on the undegraded "
+          "events as input, and on one circuit-generator rendering): consistency R^2 minus the raw stream's, count "
+          "ratio against the undegraded events, F1 (image-guided / events-only)", "",
+          "| clean_fraction | seed | rdnet: dR^2 | rdnet: count ratio | clean input: dR^2 | clean input: count ratio | "
+          "clean input: F1 | circuit: dR^2 | circuit: count ratio |", "|---|---|---|---|---|---|---|---|---|"]
+    for v in res["variants"]:
+        s = v["simulated"]
+
+        def pair(group, key, fmt):
+            st = s[group]["streams"]
+            return " / ".join(format(st[f"rdnet-{k}"][key], fmt) for k in ("image", "events"))
+        L.append(f"| {v['fraction']:g} | {v['seed']} | {pair('rdnet', 'r2_minus_raw', '+.3f')} | "
+                 f"{pair('rdnet', 'count_ratio', '.2f')} | {pair('clean input', 'r2_minus_raw', '+.3f')} | "
+                 f"{pair('clean input', 'count_ratio', '.2f')} | {pair('clean input', 'f1', '.3f')} | "
+                 f"{pair('circuit', 'r2_minus_raw', '+.3f')} | {pair('circuit', 'count_ratio', '.2f')} |")
+    names = sorted({n for v in res["variants"] for n in v["real"]})
+    L += ["", "**Real recordings** (as stage `restore_real` scores them; image-guided where the recording has "
+          "frames): events kept, activity / background kept, consistency R^2 (raw DAVIS346: 0.348)", "",
+          "| clean_fraction | seed | " + " | ".join(names) + " |", "|---|---|" + "---|" * len(names)]
+
+    def cell(r):
+        if r is None:
+            return "-"
+        c = f", R^2 {r['consistency_r2']:.3f}" if r.get("consistency_r2") is not None else ""
+        hot = f", hot {100 * r['hot_pixels_kept']:.0f} %" if r.get("hot_pixels_kept") is not None else ""
+        return (f"{100 * r['kept']:.1f} %: {100 * r['activity_kept']:.1f} / {100 * r['background_kept']:.1f} %"
+                + hot + c)
+    for v in res["variants"]:
+        L.append(f"| {v['fraction']:g} | {v['seed']} | " + " | ".join(cell(v["real"].get(n)) for n in names) + " |")
+    return "\n".join(L) + "\n"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--fractions", type=float, nargs="*", default=[0.0, 0.2, 0.4])
+    ap.add_argument("--seeds", type=int, nargs="*", default=[0])
+    ap.add_argument("--parallel", type=int, default=2, help="trainings at once (1 thread each)")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "restore_clean_fraction.json")
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger("rdnet").setLevel(logging.WARNING)
+    import torch
+    from restore_learned_eval import eval_pairs
+
+    from rdnet.config import load_params
+    from rdnet.eval.report import write_text_atomic
+    torch.set_num_threads(1)
+    params = load_params(ROOT / "params.yaml")
+    study_fraction = float(params["train"].get("clean_fraction", 0.0))
+    start = time.perf_counter()
+    res = {"command": "python benchmarks/restore_clean_fraction.py --fractions "
+                      + " ".join(f"{f:g}" for f in args.fractions) + " --seeds " + " ".join(map(str, args.seeds)),
+           "seeds": args.seeds, "study_fraction": study_fraction, "variants": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        jobs, ckpts = [], {}
+        for f in args.fractions:
+            for seed in args.seeds:
+                for kind, task in TASKS.items():
+                    if f == study_fraction:
+                        ckpts[(f, seed, kind)] = ROOT / "models" / STUDY_MODELS[kind] / f"seed{seed}" / "model.pt"
+                    else:
+                        jobs.append(((f, seed, kind), task, f, seed, tmp / f"cf{f:g}_{task}_seed{seed}"))
+        with ThreadPoolExecutor(max_workers=args.parallel) as pool:
+            for key, path in zip([j[0] for j in jobs], pool.map(lambda j: train(*j[1:]), jobs)):
+                ckpts[key] = path
+        log.info("trained %d restorers in %.0f s", len(jobs), time.perf_counter() - start)
+        scored = eval_pairs(ROOT / "data" / "pairs" / "test.h5",
+                            {f"{f:g}/{s}/{k}": p for (f, s, k), p in ckpts.items()}, [])
+        res["raw_test"] = {m: scored["raw"][m] for m in ("f1", "count_ratio", "l1_all")}
+        for f in args.fractions:
+            for seed in args.seeds:
+                ck = {k: ckpts[(f, seed, k)] for k in TASKS}
+                test = {k: {m: scored[f"{f:g}/{seed}/{k}"][m] for m in ("f1", "count_ratio", "l1_all", "threshold")}
+                        for k in TASKS}
+                work = tmp / f"score_{f:g}_{seed}"
+                work.mkdir()
+                res["variants"].append({"fraction": f, "seed": seed, "test": test,
+                                        "simulated": simulated_scores(params, ck, work),
+                                        "real": real_scores(params, ck, work)})
+                log.info("clean_fraction %g seed %d scored (%.0f s so far)", f, seed, time.perf_counter() - start)
+    res["seconds"] = time.perf_counter() - start
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(args.out, json.dumps(res, indent=1, default=float) + "\n")
+    write_text_atomic(args.out.with_suffix(".md"), markdown(res))
+    print(markdown(res))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
