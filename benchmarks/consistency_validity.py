@@ -31,7 +31,8 @@ ones, every method's output) is then scored two ways over the windows between th
   F1, count ratio, all-voxel L1.
 
 Reads the study's outputs (``dvc repro`` first); writes
-``benchmarks/results/consistency_validity.{json,md}``.
+``benchmarks/results/consistency_validity.{json,md,png}`` (the figure also draws the committed
+run with the restorers before identity pairs, ``consistency_validity_clean_fraction0.json``).
 
     .venv/bin/python benchmarks/consistency_validity.py [--circuit-draws 1] [--scales 0.5 1 3]
 """
@@ -191,6 +192,38 @@ def markdown(res: dict) -> str:
     return "\n".join(lines)
 
 
+def figure(res: dict, path: Path, before: dict | None = None) -> Path:
+    """Consistency gain over raw (left) and count ratio against the undegraded events (right)
+    of every stream, per group of recordings; ``before``: another run's summary (the study's
+    restorers before identity pairs), drawn hatched beside the learned rows."""
+    import numpy as np
+
+    from rdnet.eval.report import _figure, _save_figure
+    groups = list(res["summary"])
+    names = [n for n in res["summary"][groups[0]]["streams"] if n not in ("raw",)]
+    fig, axes = _figure(1, 2, figsize=(12.0, 3.6))
+    width = 0.8 / (len(names) + (2 if before else 0))
+    x = np.arange(len(groups))
+    for ax, key, title in ((axes[0], "r2_minus_raw", "consistency R^2 minus the raw stream's"),
+                           (axes[1], "count_ratio", "events / undegraded events")):
+        bars = [(n, res["summary"], "", None) for n in names]
+        if before:
+            bars += [(n, before, " (before identity pairs)", "//") for n in names if n.startswith("rdnet")]
+        for i, (n, summ, suffix, hatch) in enumerate(bars):
+            v = [summ[g]["streams"][n][key] if g in summ else np.nan for g in groups]
+            ax.bar(x + (i - len(bars) / 2 + 0.5) * width, v, width, label=n + suffix, hatch=hatch,
+                   color=f"C{names.index(n)}", alpha=0.5 if hatch else 1.0)
+        ax.set_xticks(x)
+        ax.set_xticklabels([{"rdnet": "test split"}.get(g, g.replace("rdnet stress ", "stress ")) for g in groups],
+                           fontsize=7)
+        ax.set_title(title, fontsize=9)
+        ax.axhline(1.0 if key == "count_ratio" else 0.0, color="k", lw=0.6)
+    axes[1].legend(fontsize=6, ncol=2)
+    fig.suptitle("Recordings built from the simulated test split: each method through rdnet restore "
+                 "(clean input: the undegraded events handed in)", fontsize=9)
+    return _save_figure(fig, path)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--params", type=Path, default=ROOT / "params.yaml")
@@ -224,6 +257,9 @@ def main() -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(res, indent=1, default=float) + "\n")
     args.out.with_suffix(".md").write_text(markdown(res) + "\n")
+    before = args.out.with_name("consistency_validity_clean_fraction0.json")
+    figure(res, args.out.with_suffix(".png"),
+           json.loads(before.read_text())["summary"] if before.is_file() and before != args.out else None)
     print(markdown(res))
     return 0
 
