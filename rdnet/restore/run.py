@@ -107,6 +107,12 @@ def _windows_after_shift(chunks, latency_us: float, early: list, window_us: int,
         raise e
 
 
+#: ``rdnet restore`` notes (OUT.json ``notes``, a logged warning) an output of more than this
+#: many times the recorded events: the learned restorers trained without identity pairs
+#: doubled clean and dense streams (docs/restoration.md, "A stream that needs no restoring").
+MANY_ADDED = 1.5
+
+
 def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *, method: str | None = None,
                       checkpoint: str | Path | None = None, progress: bool = True,
                       sensor_size: tuple[int, int] | None = None) -> dict:
@@ -211,6 +217,12 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                               "interval_us": cfg.esr_interval_us} if cfg.scores else None,
                       "consistency": None}
             notes = [] if cfg.scores else ["no-reference scores off (restore.scores=false)"]
+            if n_in and n_out > MANY_ADDED * n_in:
+                note = (f"the restored stream holds {n_out / n_in:.2f}x the recorded events: {restorer.name} "
+                        f"added events where it judged them lost; on a stream that lost few (a clean sensor, "
+                        f"dense activity) that is invention: compare with --method baf")
+                notes.append(note)
+                log.warning("%s", note)
             if consistency is not None:
                 scores["consistency"] = consistency.scores()
             elif has_frames and cfg.scores:

@@ -366,3 +366,25 @@ def test_latency_from_a_calibration_report_is_undone_first(tmp_path, capsys):
                  "--set", "restore.latency_us=1e9"]) == 2
     assert "restore.latency_us" in capsys.readouterr().err and not (tmp_path / "o4.h5").exists()
     assert info["latency_dropped"] == (~keep).sum() > 0
+
+
+def test_an_output_that_adds_many_events_is_noted(tmp_path, monkeypatch, caplog):
+    """More than restore.MANY_ADDED x the recorded events: a note in OUT.json and a warning."""
+    from rdnet.restore import base, run
+    from rdnet.events.core import concatenate
+
+    class Doubler(base.RawRestorer):
+        name = "doubler"
+
+        def restore(self, events, t0_us, t1_us, frame):
+            return concatenate([events, events], sort=True)
+
+    _write(tmp_path / "in.h5")
+    monkeypatch.setattr(run, "get_restorer", lambda *a, **k: Doubler())
+    res = run.restore_recording(tmp_path / "in.h5", tmp_path / "o.h5", {}, method="raw", progress=False)
+    assert res["events_out"] == 2 * res["events_in"]
+    assert any("2.00x the recorded events" in n for n in res["notes"])
+    assert "invention" in caplog.text
+    monkeypatch.undo()                                  # the identity: no note
+    res = run.restore_recording(tmp_path / "in.h5", tmp_path / "q.h5", {}, method="raw", progress=False)
+    assert not any("recorded events" in n for n in res["notes"])
