@@ -93,9 +93,11 @@ def score_sequence(src: Path, params: dict, frame_step: int, tmp: Path, raw_grou
         w.write_frames(sub)
         w.append_events(raw)
     streams = {"raw": raw, "undegraded": ideal}
+    # rdnet restore's own scores off: every stream is scored below, the same way
+    run_params = {**params, "restore": {**params.get("restore", {}), "scores": False}}
     for name, (method, ck) in (METHODS if methods is None else methods).items():
         out = tmp / f"{name.replace('/', '_')}.h5"
-        restore_recording(rec, out, params, method=method, checkpoint=None if ck is None else ROOT / ck,
+        restore_recording(rec, out, run_params, method=method, checkpoint=None if ck is None else ROOT / ck,
                           progress=False)
         streams[name] = read_events(out, "events").slice_time(int(t[0]), int(t[-1]))
     s = section(params, "sensor")
@@ -258,8 +260,7 @@ def main() -> int:
     args.out.write_text(json.dumps(res, indent=1, default=float) + "\n")
     args.out.with_suffix(".md").write_text(markdown(res) + "\n")
     before = args.out.with_name("consistency_validity_clean_fraction0.json")
-    figure(res, args.out.with_suffix(".png"),
-           json.loads(before.read_text())["summary"] if before.is_file() and before != args.out else None)
+    figure(res, args.out.with_suffix(".png"), json.loads(before.read_text())["summary"] if before.is_file() else None)
     print(markdown(res))
     return 0
 

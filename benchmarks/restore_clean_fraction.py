@@ -28,10 +28,7 @@ Writes ``benchmarks/results/restore_clean_fraction.{json,md}``.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
-import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -45,53 +42,50 @@ TASKS = {"image": "restore", "events": "restore_events"}
 STUDY_MODELS = {"image": "restore_image", "events": "restore_events"}
 
 
-def train(task: str, fraction: float, seed: int, out: Path) -> Path:
-    cmd = [sys.executable, "-m", "rdnet.train.run", "--task", task, "--train", str(ROOT / "data" / "pairs" / "train.h5"),
-           "--out", str(out), "--no-progress", "--params", str(ROOT / "params.yaml"),
-           "--set", f"train.seed={seed}", "--set", f"train.clean_fraction={fraction}",
-           "--set", "train.dvclive=false", "--set", "train.threads=1"]
-    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    subprocess.run(cmd, check=True, cwd=ROOT, env=env, stdout=subprocess.DEVNULL)
-    return out / "model.pt"
-
-
-def simulated_scores(params: dict, ckpts: dict[str, Path], tmp: Path) -> dict:
-    """consistency_validity's groups rdnet / clean input / circuit (one draw) for one variant."""
-    from consistency_validity import score_sequence, sources, summarize
-    methods = {f"rdnet-{kind}": ("rdnet", path) for kind, path in ckpts.items()}
+def simulated_scores(params: dict, ckpts: dict[str, dict[str, Path]], srcs: list, tmp: Path) -> dict:
+    """consistency_validity's groups for every variant (``ckpts``: variant -> kind -> checkpoint):
+    each sequence's frames, raw and undegraded streams read and scored once, every variant's
+    restorers run on it; then per variant the groups with its two restorers as ``rdnet-<kind>``."""
+    from consistency_validity import score_sequence, summarize
+    methods = {f"{v}/{kind}": ("rdnet", path) for v, kinds in ckpts.items() for kind, path in kinds.items()}
     per_seq = []
-    srcs = sources("rdnet", params, tmp, 0, ()) + sources("clean", params, tmp, 0, ()) + \
-        sources("circuit", params, tmp, 1, ())
     for group, path in srcs:
         work = tmp / "work"
         work.mkdir(exist_ok=True)
         rows = score_sequence(path, params, 10, work, "events_ideal" if group == "clean input" else "events", methods)
         per_seq.append({"group": group, "sequence": path.name, "streams": rows})
-    return summarize(per_seq)
+    joint = summarize(per_seq)
+    return {v: {g: {"sequences": s["sequences"],
+                    "streams": {**{n: s["streams"][n] for n in ("raw", "undegraded")},
+                                **{f"rdnet-{kind}": s["streams"][f"{v}/{kind}"] for kind in kinds}}}
+                for g, s in joint.items()}
+            for v, kinds in ckpts.items()}
 
 
-def real_scores(params: dict, ckpts: dict[str, Path], tmp: Path) -> dict:
+def real_scores(params: dict, ckpts: dict[str, dict[str, Path]], tmp: Path) -> dict:
+    """Every variant on every real recording (``restore_training_scenes.score_real``: one load
+    and activity mask per recording), image-guided where the recording has frames."""
+    from restore_training_scenes import score_real
+
     from rdnet.errors import FormatError
     from rdnet.events.io import format_of
     from rdnet.events.io.stream import open_events
-    from rdnet.restore.real import Run, read_facts, recordings, score_recording
+    from rdnet.restore.real import read_facts, recordings
     facts = read_facts(ROOT / "stages" / "real_recordings.yaml")
-    out = {}
+    out = {v: {} for v in ckpts}
     for name, path in recordings([ROOT / "data" / "real", ROOT.parent / "shared" / "real"]):
         try:
             format_of(path)
             with open_events(path, sensor_size=facts.sensor_size.get(name)) as src:
-                has_frames = src.has_frames
+                kind = "image" if src.has_frames else "events"
         except FormatError as e:
             log.warning("skipping %s: %s", path, e)
             continue
-        kind = "image" if has_frames else "events"
-        sc = score_recording(name, path, params, [Run("rdnet", "rdnet", checkpoint=ckpts[kind])], tmp / name,
-                             keep=False, facts=facts)
-        r = sc.entry["methods"]["rdnet"]
-        out[name] = {"restorer": kind, "kept": r["kept_fraction"], "consistency_r2": r["consistency_r2"],
-                     "esr": r["esr"], **{f"{k}_kept": v for k, v in r["regions"].items()}}
-        log.info("%s (%s): %s", name, kind, out[name])
+        scored = score_real(path, name, params, {v: ("rdnet", kinds[kind]) for v, kinds in ckpts.items()}, tmp)
+        for v, r in scored["methods"].items():
+            out[v][name] = {"restorer": kind, "kept": r["kept_fraction"], "consistency_r2": r["consistency_r2"],
+                            "esr": r["esr"], "activity_kept": r["activity"], "background_kept": r["background"],
+                            **({"hot_pixels_kept": r["hot_pixels"]} if "hot_pixels" in r else {})}
     return out
 
 
@@ -151,13 +145,15 @@ def main() -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("rdnet").setLevel(logging.WARNING)
     import torch
+    from consistency_validity import sources
     from restore_learned_eval import eval_pairs
+    from restore_train_range import train, write_results
 
     from rdnet.config import load_params
-    from rdnet.eval.report import write_text_atomic
     torch.set_num_threads(1)
     params = load_params(ROOT / "params.yaml")
     study_fraction = float(params["train"].get("clean_fraction", 0.0))
+    iterations = int(params["train"]["iterations"])
     start = time.perf_counter()
     res = {"command": "python benchmarks/restore_clean_fraction.py --fractions "
                       + " ".join(f"{f:g}" for f in args.fractions) + " --seeds " + " ".join(map(str, args.seeds)),
@@ -171,29 +167,29 @@ def main() -> int:
                     if f == study_fraction:
                         ckpts[(f, seed, kind)] = ROOT / "models" / STUDY_MODELS[kind] / f"seed{seed}" / "model.pt"
                     else:
-                        jobs.append(((f, seed, kind), task, f, seed, tmp / f"cf{f:g}_{task}_seed{seed}"))
+                        jobs.append(((f, seed, kind), task, seed, tmp / f"cf{f:g}_{task}_seed{seed}", f))
+        pairs = ROOT / "data" / "pairs" / "train.h5"
         with ThreadPoolExecutor(max_workers=args.parallel) as pool:
-            for key, path in zip([j[0] for j in jobs], pool.map(lambda j: train(*j[1:]), jobs)):
+            done = pool.map(lambda j: train(j[1], pairs, j[3], j[2], iterations, [f"train.clean_fraction={j[4]}"]),
+                            jobs)
+            for key, (path, _) in zip([j[0] for j in jobs], done):
                 ckpts[key] = path
         log.info("trained %d restorers in %.0f s", len(jobs), time.perf_counter() - start)
         scored = eval_pairs(ROOT / "data" / "pairs" / "test.h5",
                             {f"{f:g}/{s}/{k}": p for (f, s, k), p in ckpts.items()}, [])
         res["raw_test"] = {m: scored["raw"][m] for m in ("f1", "count_ratio", "l1_all")}
-        for f in args.fractions:
-            for seed in args.seeds:
-                ck = {k: ckpts[(f, seed, k)] for k in TASKS}
-                test = {k: {m: scored[f"{f:g}/{seed}/{k}"][m] for m in ("f1", "count_ratio", "l1_all", "threshold")}
-                        for k in TASKS}
-                work = tmp / f"score_{f:g}_{seed}"
-                work.mkdir()
-                res["variants"].append({"fraction": f, "seed": seed, "test": test,
-                                        "simulated": simulated_scores(params, ck, work),
-                                        "real": real_scores(params, ck, work)})
-                log.info("clean_fraction %g seed %d scored (%.0f s so far)", f, seed, time.perf_counter() - start)
+        variants = {f"{f:g}/{seed}": (f, seed) for f in args.fractions for seed in args.seeds}
+        by_variant = {v: {k: ckpts[(f, seed, k)] for k in TASKS} for v, (f, seed) in variants.items()}
+        srcs = sources("rdnet", params, tmp, 0, ()) + sources("clean", params, tmp, 0, ()) + \
+            sources("circuit", params, tmp, 1, ())                  # the circuit draw rendered once
+        simulated = simulated_scores(params, by_variant, srcs, tmp)
+        real = real_scores(params, by_variant, tmp)
+        for v, (f, seed) in variants.items():
+            test = {k: {m: scored[f"{v}/{k}"][m] for m in ("f1", "count_ratio", "l1_all", "threshold")} for k in TASKS}
+            res["variants"].append({"fraction": f, "seed": seed, "test": test, "simulated": simulated[v],
+                                    "real": real[v]})
     res["seconds"] = time.perf_counter() - start
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(args.out, json.dumps(res, indent=1, default=float) + "\n")
-    write_text_atomic(args.out.with_suffix(".md"), markdown(res))
+    write_results(args.out, res, markdown)
     print(markdown(res))
     return 0
 

@@ -61,10 +61,15 @@ def simulate_train(params: dict, scale, work: Path) -> Path:
     return pairs / "train.h5"
 
 
-def train(task: str, pairs: Path, out: Path, seed: int, iterations: int) -> tuple[Path, float]:
+def train(task: str, pairs: Path, out: Path, seed: int, iterations: int, overrides=()) -> tuple[Path, float]:
+    """One training of ``task`` (study ``params.yaml``, one thread, no DVCLive) in a child
+    process; ``overrides``: more ``--set`` values (``"train.clean_fraction=0.2"``). Returns
+    the checkpoint and the wall time."""
     cmd = [sys.executable, "-m", "rdnet.train.run", "--task", task, "--train", str(pairs), "--out", str(out),
            "--no-progress", "--params", str(ROOT / "params.yaml"), "--set", f"train.seed={seed}",
            "--set", f"train.iterations={iterations}", "--set", "train.dvclive=false", "--set", "train.threads=1"]
+    for o in overrides:
+        cmd += ["--set", o]
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     t = time.perf_counter()
     subprocess.run(cmd, check=True, cwd=ROOT, env=env, stdout=subprocess.DEVNULL)

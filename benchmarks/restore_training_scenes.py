@@ -63,7 +63,7 @@ def training_pairs(params: dict, scenes_overrides: dict, work: Path) -> Path:
 def score_real(path: Path, name: str, params: dict, runs: dict[str, tuple[str, Path | None]], work: Path) -> dict:
     """``runs``: label -> (method, checkpoint), scored as ``restore_real`` scores them
     (:func:`rdnet.restore.real.score_recording`): events kept, activity / background kept,
-    ESR and, with frames, the consistency R^2."""
+    ESR, with frames the consistency R^2, and on recordings with known hot pixels their share kept."""
     from rdnet.restore.real import Run, read_facts, score_recording
     sc = score_recording(name, path, params, [Run(k, m, ck) for k, (m, ck) in runs.items()], work / name,
                          keep=False, facts=read_facts(ROOT / "stages" / "real_recordings.yaml"))
@@ -71,7 +71,8 @@ def score_real(path: Path, name: str, params: dict, runs: dict[str, tuple[str, P
     for label, m in sc.entry["methods"].items():
         out["methods"][label] = {"events_out": m["events_out"], "kept_fraction": m["kept_fraction"],
                                  "activity": m["regions"]["activity"], "background": m["regions"]["background"],
-                                 "consistency_r2": m["consistency_r2"], "esr": m["esr"]}
+                                 "consistency_r2": m["consistency_r2"], "esr": m["esr"],
+                                 **({"hot_pixels": m["regions"]["hot_pixels"]} if "hot_pixels" in m["regions"] else {})}
         log.info("%s %s: %s", name, label, out["methods"][label])
     return out
 
