@@ -12,7 +12,17 @@ support (BAF, as in jAER and v2e) can remove at all:
 * per band, the share BAF (``restore.baf_dt_us``) keeps, on the recording as it is, and with
   the background events' timestamps drawn uniformly over the recording (the same pixels and
   counts, no temporal structure: what BAF keeps from noise alone, given where the noisy
-  pixels sit).
+  pixels sit);
+* per band, its pixels and events per pixel and second, and the events *in excess of the far
+  field's rate* (the band >= 40 px from the mask, taken as the noise floor of a pixel that
+  sees no motion): ``events - floor_rate x pixels x seconds``. Background-activity noise
+  does not know where the person is, so that excess is an estimate of the signal the mask
+  leaves out, which a restorer that keeps signal keeps too; its share of the background is
+  the lowest background share such a restorer can reach (an estimate: the floor is assumed
+  uniform over the sensor);
+* per band, the share of the events ``rdnet restore`` (``--method rdnet``: the study's
+  events-only restorer, as ``restore_real`` runs it) writes out, by pixel location (a
+  restorer may move or add events, so this is output over input per band).
 
 Writes ``benchmarks/results/dvxplorer_background.{json,md}``.
 
@@ -46,6 +56,7 @@ def main(argv=None) -> int:
     ap.add_argument("--recording", type=Path, default=RECORDING)
     ap.add_argument("--seed", type=int, default=0, help="seed of the shuffled timestamps")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "dvxplorer_background.json")
+    ap.add_argument("--no-restorer", action="store_true", help="skip the learned restorer's column")
     args = ap.parse_args(argv)
     cfg = section(load_params(ROOT / "params.yaml"), "restore")
 
@@ -68,18 +79,34 @@ def main(argv=None) -> int:
     kept_shuffled[order] = baf_mask(Events(arr[order], W, H), cfg.baf_dt_us)
 
     seconds = (t1 - t0) * 1e-6
+    dist_px = distance_transform_edt(~act)              # per pixel (0 inside the mask)
+    out_dist = None
+    if not args.no_restorer:
+        out_dist = _restored_distances(args.recording, dist_px, hot)
+    far_lo = BANDS_PX[-1][0]
+    far_pixels = int(((dist_px >= far_lo) & ~act & ~hot).sum())
+    floor_hz = float((bg & (dist >= far_lo)).sum() / seconds / max(far_pixels, 1))
     rows = []
     for lo, hi in BANDS_PX + ((0, None),):
         m = bg & (dist >= lo) & ((dist < hi) if hi is not None else True)
-        rows.append({"band_px": [lo, hi], "events": int(m.sum()), "share_of_background": float(m.sum() / bg.sum()),
-                     "baf_kept": float(kept[m].mean()), "baf_kept_shuffled_times": float(kept_shuffled[m].mean())})
+        pm = ~act & ~hot & (dist_px >= lo) & ((dist_px < hi) if hi is not None else True)
+        pixels = int(pm.sum())
+        excess = max(0.0, float(m.sum()) - floor_hz * pixels * seconds)
+        row = {"band_px": [lo, hi], "events": int(m.sum()), "share_of_background": float(m.sum() / bg.sum()),
+               "pixels": pixels, "rate_hz_per_pixel": float(m.sum() / seconds / max(pixels, 1)),
+               "excess_over_floor": excess, "excess_share_of_background": excess / float(bg.sum()),
+               "baf_kept": float(kept[m].mean()), "baf_kept_shuffled_times": float(kept_shuffled[m].mean())}
+        if out_dist is not None:
+            om = (out_dist >= lo) & ((out_dist < hi) if hi is not None else True)
+            row["restorer_out_over_in"] = float(om.sum() / max(int(m.sum()), 1))
+        rows.append(row)
     busy = counts[~act & ~hot]
     result = {"recording": str(args.recording.relative_to(ROOT.parent)), "hot_pixels_removed": int(hot.sum()),
               "activity_mask": MASK, "baf_dt_us": cfg.baf_dt_us, "seconds": seconds,
               "activity_kept_by_baf": float(kept[~bg].mean()),
               "background_pixels": int((~act).sum()), "background_pixels_with_events": int((busy > 0).sum()),
               "background_rate_hz_per_pixel": float(bg.sum() / seconds / max((~act).sum(), 1)),
-              "bands": rows}
+              "noise_floor_hz_per_pixel": floor_hz, "bands": rows}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=1) + "\n")
     lines = ["# DVXplorer background: what BAF can remove", "",
@@ -87,16 +114,42 @@ def main(argv=None) -> int:
              f"BAF dt {cfg.baf_dt_us} us keeps {100 * result['activity_kept_by_baf']:.1f} % of the activity-mask events. "
              f"Background: {result['background_pixels_with_events']} of {result['background_pixels']} pixels have events, "
              f"{result['background_rate_hz_per_pixel']:.2f} Hz per pixel on average.", "",
-             "| distance to the activity mask (px) | events | share of background | BAF keeps | "
-             "BAF keeps, background times shuffled |", "|---|---|---|---|---|"]
+             f"Noise floor (the band >= {far_lo} px): {floor_hz:.2f} Hz per pixel. Excess = events above that "
+             "floor (an estimate of signal outside the mask); restorer = `rdnet restore --method rdnet` "
+             "(events-only), its output events over the input events of the band, by pixel.", "",
+             "| distance to the activity mask (px) | pixels | events | Hz per pixel | share of background | "
+             "excess over the floor (share of background) | BAF keeps | BAF keeps, background times shuffled | "
+             "restorer out / in |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lo, hi = r["band_px"]
         band = "all" if (lo, hi) == (0, None) else (f">= {lo}" if hi is None else f"{lo}-{hi}")
-        lines.append(f"| {band} | {r['events']:,} | {100 * r['share_of_background']:.1f} % | "
-                     f"{100 * r['baf_kept']:.1f} % | {100 * r['baf_kept_shuffled_times']:.1f} % |")
+        rest = "-" if "restorer_out_over_in" not in r else f"{100 * r['restorer_out_over_in']:.1f} %"
+        lines.append(f"| {band} | {r['pixels']:,} | {r['events']:,} | {r['rate_hz_per_pixel']:.2f} | "
+                     f"{100 * r['share_of_background']:.1f} % | {r['excess_over_floor']:,.0f} "
+                     f"({100 * r['excess_share_of_background']:.1f} %) | "
+                     f"{100 * r['baf_kept']:.1f} % | {100 * r['baf_kept_shuffled_times']:.1f} % | {rest} |")
     args.out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0
+
+
+def _restored_distances(recording: Path, dist_px: np.ndarray, hot: np.ndarray) -> np.ndarray:
+    """Distance to the activity mask of every event ``rdnet restore --method rdnet`` writes
+    for ``recording`` (in a temporary folder), the hot pixels' events left out as the input's
+    are."""
+    import subprocess
+    import sys
+    import tempfile
+
+    from rdnet.events.io.dispatch import load
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "restored.h5"
+        subprocess.run([sys.executable, "-m", "rdnet.cli", "restore", str(recording), str(out),
+                        "--method", "rdnet"], check=True, cwd=ROOT)
+        ev = load(out).events
+    keep = ~hot[ev.y, ev.x]
+    d = dist_px[ev.y[keep], ev.x[keep]]
+    return np.where(d > 0, d, -1.0)          # events inside the mask fall in no band
 
 
 if __name__ == "__main__":

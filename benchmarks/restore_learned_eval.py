@@ -29,7 +29,7 @@ import torch
 
 from rdnet.config import load_params, section
 from rdnet.eval.events import match_metrics
-from rdnet.nn.decision import decide_counts, polarity_grid, split_signed
+from rdnet.nn.decision import decide_counts, polarity_grid, split_signed, support_applies
 from rdnet.train import checkpoint as ckpt_mod
 from rdnet.train.data import PairsDataset
 from rdnet.train.loop import predict_counts
@@ -94,10 +94,12 @@ def eval_pairs(pairs: Path, ckpts: dict[str, Path], also_thresholds=(), stcf: np
     for name, path in ckpts.items():
         ck = ckpt_mod.read_checkpoint(path)
         net = ckpt_mod.model_from_checkpoint(path, ck).eval()
-        out, prob, _ = predict_counts(net, data, torch.device("cpu"), image=net.image_channels > 0)
+        out, prob, _, support = predict_counts(net, data, torch.device("cpu"), image=net.image_channels > 0,
+                                               with_support=True)
         if net.output == "counts":
-            thr = float(ck["extra"]["decision"]["threshold"])
-            restored = decide_counts(out, prob, thr)
+            decision = ck["extra"]["decision"]
+            thr = float(decision["threshold"])
+            restored = decide_counts(out, prob, thr, support if support_applies(decision) else None)
             for t in also_thresholds:      # the same network with another (not fitted) threshold
                 res[f"{name}@{t}"] = {**pair_metrics(decide_counts(out, prob, t), target, degraded), "threshold": t}
         else:

@@ -36,7 +36,7 @@ def run_stage1(stage1, image: torch.Tensor | None, x: torch.Tensor,
             mu, logit = stage1(image, x, return_heads=True)
             prob = torch.sigmoid(logit)
             out = prob * mu                          # RestoreNet.forward's expected counts
-            events = None if decision is None else events_from_heads(mu, prob, decision)
+            events = None if decision is None else events_from_heads(mu, prob, decision, x)
         else:
             out = stage1(image, x)
             events = None if decision is None else events_from_signed(out)

@@ -39,6 +39,11 @@ class TrainConfig:
     ``(seed, epoch, row)``): without them every stage-1 input has lost events, and the
     restorer learns to add events to any stream, a clean one included (docs/restoration.md,
     "A stream that needs no restoring"). 0 = the paper's training data.
+    ``support_rule`` (counts output): whether the fitted decision may drop the voxels with no
+    input event at any of the 8 neighbouring pixels in the window; it does when, on the
+    validation rows, those voxels are real less often than the occupancy threshold
+    (:func:`rdnet.nn.decision.fit_support`; docs/restoration.md, "Events with no
+    neighbour"). False = the threshold alone (every decision before it).
     ``val_sequences``: the last sequences of the training file held out from stage-1
     training (tasks restore, restore_events) to fit the voxel -> event decision
     (:mod:`rdnet.nn.decision`); needed by ``counts`` (>= 1), 0 = train on every row.
@@ -77,6 +82,7 @@ class TrainConfig:
     restore_output: Literal["signed_masked", "counts"] = "signed_masked"
     occupancy_weight: float = 1.0
     clean_fraction: float = 0.0
+    support_rule: bool = False
     val_sequences: int = 0
     stage2_input: Literal["restored", "dual"] = "restored"
     feature_grad: bool = False

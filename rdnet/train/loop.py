@@ -198,13 +198,16 @@ def _median_window_us(path: str | Path, rows) -> int | None:
 # --- the voxel -> event decision -------------------------------------------------------
 @torch.no_grad()
 def predict_counts(net: nn.Module, data: PairsDataset, device: torch.device, *, image: bool = True,
-                   batch_size: int = 8):
+                   batch_size: int = 8, with_support: bool = False):
     """Run a RestoreNet over every row of ``data`` (full frames): ``(mu, prob, target)``
     per-polarity arrays (N, 2 * bins, H, W) for the counts output; for the signed output
-    ``(restored signed voxel, None, target signed voxel)``."""
+    ``(restored signed voxel, None, target signed voxel)``. ``with_support``: a fourth item,
+    the inputs' :func:`rdnet.nn.decision.input_support` (N, 1, H, W) (None for the signed
+    output)."""
+    from rdnet.nn.decision import input_support
     net.eval()
     counts = net.output == "counts"
-    outs, probs, targets = [], [], []
+    outs, probs, targets, support = [], [], [], []
     for i0 in range(0, len(data), batch_size):
         rows = [data[i] for i in range(i0, min(len(data), i0 + batch_size))]
         batch = {k: torch.stack([r[k] for r in rows]).to(device) for k in rows[0] if k not in ("level", "index")}
@@ -214,36 +217,44 @@ def predict_counts(net: nn.Module, data: PairsDataset, device: torch.device, *, 
             outs.append(mu.cpu().numpy())
             probs.append(torch.sigmoid(logit).cpu().numpy())
             targets.append(batch["counts_undegraded"].cpu().numpy())
+            support.append(input_support(batch["counts_degraded"]))
         else:
             outs.append(net(img, batch["voxel_degraded"]).cpu().numpy())
             targets.append(batch["voxel_undegraded"].cpu().numpy())
     cat = np.concatenate
+    if with_support:
+        return cat(outs), (cat(probs) if counts else None), cat(targets), (cat(support) if counts else None)
     return cat(outs), (cat(probs) if counts else None), cat(targets)
 
 
 def fit_decision(net: nn.Module, train_path: str | Path, val_rows, device: torch.device, *,
-                 image: bool = True) -> dict:
+                 image: bool = True, support_rule: bool = True) -> dict:
     """The voxel -> event decision of a trained RestoreNet (``extra["decision"]``):
     counts output -- the occupancy threshold fitted on the validation rows so that the
-    restored event count matches the undegraded one (:func:`rdnet.nn.decision.fit_threshold`);
-    signed output -- the paper's rounding. Both with the validation event metrics
-    (:func:`rdnet.eval.events.match_metrics`) of the decided events."""
+    restored event count matches the undegraded one (:func:`rdnet.nn.decision.fit_threshold`)
+    and, with ``support_rule`` (``train.support_rule``), whether to drop the voxels without
+    a neighbouring input event (:func:`rdnet.nn.decision.fit_support`, which refits the
+    threshold when it drops them); signed output -- the paper's rounding. Both with the
+    validation event metrics (:func:`rdnet.eval.events.match_metrics`) of the decided events."""
     from rdnet.eval.events import match_metrics
-    from rdnet.nn.decision import decide_counts, decision_dict, fit_threshold, polarity_grid, split_signed
+    from rdnet.nn.decision import (decide_counts, decision_dict, fit_support, fit_threshold, polarity_grid,
+                                   split_signed, support_applies)
     if len(val_rows) == 0:
         if net.output == "counts":
             raise ConfigError("train.val_sequences", "the counts decision needs validation rows")
         return decision_dict(None, fitted_on="none")
     data = PairsDataset(train_path, events="degraded", crop=None, augment=False, rows=val_rows)
     try:
-        out, prob, target = predict_counts(net, data, device, image=image)
+        out, prob, target, support = predict_counts(net, data, device, image=image, with_support=True)
     finally:
         data.close()
     info = {"fitted_on": f"{len(val_rows)} held-out training rows (train.val_sequences)",
             "val_rows": int(len(val_rows))}
     if net.output == "counts":
         threshold = fit_threshold(out, prob, int(target.sum()))
-        restored = decide_counts(out, prob, threshold)
+        if support_rule:
+            threshold, info["support"] = fit_support(out, prob, target, support, threshold)
+        restored = decide_counts(out, prob, threshold, support if support_applies(info) else None)
         metrics = match_metrics(polarity_grid(restored), polarity_grid(np.rint(target).astype(np.int64)))
     else:
         threshold = None
@@ -509,8 +520,8 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
     if stop < cfg.iterations:
         return last_path
     if task in RESTORE_TASKS:
-        extra["decision"] = fit_decision(net, train_path, val_rows, device,
-                                         image=task != "restore_events") if main else None
+        extra["decision"] = fit_decision(net, train_path, val_rows, device, image=task != "restore_events",
+                                         support_rule=cfg.support_rule) if main else None
     elif task == "rdnet" and init_checkpoint is not None:
         init_extra = ckpt_mod.read_checkpoint(init_checkpoint).get("extra", {})
         extra["decision"] = init_extra.get("decision")
@@ -518,7 +529,8 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
         if counts and cfg.finetune_restore and len(val) and main:
             # stage 2 fine-tuned stage 1: its occupancy moved, so the threshold is refitted on
             # stage 1's held-out rows (stage 2 trained on them: a count match, not a test score)
-            extra["decision"] = {**fit_decision(net.restore, train_path, np.asarray(val, np.int64), device),
+            extra["decision"] = {**fit_decision(net.restore, train_path, np.asarray(val, np.int64), device,
+                                                support_rule=cfg.support_rule),
                                  "refit": "after stage 2 fine-tuning, on the stage-1 validation rows"}
     save(final_path, step, full=False)
     if main and last_path.exists():

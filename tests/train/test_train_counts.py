@@ -146,3 +146,23 @@ def test_clean_fraction_serves_identity_pairs_without_moving_the_crops(noisy):
         TrainConfig(**CFG, clean_fraction=1.0)
     with pytest.raises(ConfigError, match="clean_fraction"):
         PairsDataset(noisy, clean_fraction=-0.1)
+
+
+def test_support_rule_is_fitted_and_stored_and_keeps_a_clean_stream(clean, noisy, tmp_path):
+    import dataclasses
+
+    from rdnet.nn.decision import SUPPORT_RULE
+    cfg = dataclasses.replace(COUNTS, support_rule=True)
+    d = read_checkpoint(train("restore", cfg, TINY, clean, tmp_path / "c", progress=False))["extra"]["decision"]
+    s = d["support"]
+    # a noise-free stream: whatever has no neighbour is real, so nothing is dropped and the
+    # threshold stays the one fitted without the rule
+    assert s["rule"] == SUPPORT_RULE and not s["drop"] and s["threshold_before"] == d["threshold"]
+    assert s["val_events"] == 0 or s["val_precision"] == 1.0
+    assert d["val_metrics"]["precision"] == 1.0 and d["val_metrics"]["recall"] == 1.0
+    d = read_checkpoint(train("restore_events", cfg, TINY, noisy, tmp_path / "n", progress=False))["extra"]["decision"]
+    s = d["support"]
+    assert s["rule"] == SUPPORT_RULE and isinstance(s["drop"], bool) and s["val_events"] >= 0
+    assert s["drop"] == (s["val_precision"] is not None and s["val_precision"] < s["threshold_before"])
+    assert "support" not in read_checkpoint(train("restore", COUNTS, TINY, clean, tmp_path / "p",
+                                                  progress=False))["extra"]["decision"]

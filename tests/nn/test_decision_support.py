@@ -1,0 +1,104 @@
+"""The support rule of the voxel -> event decision (rdnet.nn.decision: neighbour_support,
+input_support, fit_support, and the rule in every path that decides events): known answers on
+hand-made grids, and the dense, sparse and probability paths keeping the same voxels."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from _nets import count_inputs, perturbed_count_net
+
+from rdnet.errors import ValidationError
+from rdnet.nn.decision import (SUPPORT_RULE, decide_counts, decided_entries, decided_events, decision_dict,
+                               events_from_heads, fit_support, input_support, neighbour_support,
+                               sparse_decided_entries, support_applies)
+from rdnet.nn.sparse import SparseVoxels
+
+
+def test_neighbour_support_known_answer():
+    occ = np.zeros((5, 6), bool)
+    occ[0, 0] = True                      # alone in its corner
+    occ[3, 3] = occ[4, 4] = True          # diagonal neighbours of each other
+    sup = neighbour_support(occ)
+    assert not sup[0, 0]                  # the pixel itself does not count
+    assert sup[3, 3] and sup[4, 4]
+    assert sup[1, 1] and sup[0, 1] and sup[1, 0]        # next to the corner event
+    assert not sup[2, 0] and not sup[0, 2]              # two pixels away
+    assert sup.sum() == 3 + 11      # the corner event's 3 neighbours; rows 2-4 x cols 2-4 and (3, 5), (4, 5) around the pair
+    np.testing.assert_array_equal(occ, neighbour_support(occ) & occ | occ)   # input untouched
+
+
+def test_input_support_from_dense_and_sparse_inputs_agree():
+    x, _ = count_inputs(0.05)             # sparse Poisson counts: isolated events exist
+    dense = input_support(x)
+    assert dense.shape == (1, 1, 13, 19) and dense.dtype == bool
+    occ = (x[0] > 0).any(0).numpy()
+    assert (occ & ~dense[0, 0]).any()     # some events have no neighbour
+    idx = np.flatnonzero(x[0].numpy().ravel())
+    sp = SparseVoxels.of(idx, x[0].numpy().ravel()[idx], tuple(x.shape[1:]))
+    np.testing.assert_array_equal(input_support(sp), dense)
+    np.testing.assert_array_equal(input_support(x.numpy()), dense)
+
+
+def test_an_isolated_event_is_dropped_and_a_supported_pair_kept():
+    # one polarity channel pair, 1 bin: ON channel 0, OFF channel 1
+    counts = np.zeros((1, 2, 6, 6), np.float32)
+    counts[0, 0, 0, 0] = 1                # isolated
+    counts[0, 0, 4, 4] = counts[0, 1, 4, 5] = 1   # neighbours (opposite polarities count)
+    mu = np.ones_like(counts)
+    prob = np.where(counts > 0, 0.9, 0.01).astype(np.float32)
+    plain = decide_counts(mu, prob, 0.5)
+    assert plain.sum() == 3
+    kept = decide_counts(mu, prob, 0.5, input_support(counts))
+    assert kept[0, 0, 0, 0] == 0 and kept[0, 0, 4, 4] == 1 and kept[0, 1, 4, 5] == 1 and kept.sum() == 2
+
+
+def test_fit_support_drops_only_when_the_unsupported_voxels_are_rarely_real():
+    rng = np.random.default_rng(0)
+    n, C, H, W = 4, 2, 16, 16
+    counts = (rng.random((n, C, H, W)) < 0.03).astype(np.float32)
+    sup = input_support(counts)
+    prob = np.where(counts > 0, 0.9, 0.0).astype(np.float32)
+    mu = np.ones_like(counts)
+    target_real_isolated = counts.copy()                     # every event real, isolated ones too
+    t, info = fit_support(mu, prob, target_real_isolated, sup, 0.5)
+    assert info["rule"] == SUPPORT_RULE and info["val_precision"] == 1.0 and not info["drop"] and t == 0.5
+    target = counts * np.broadcast_to(sup, counts.shape)     # only supported events are real
+    target[:, :, 0, 0] += 1                                  # one more real event elsewhere: count target
+    t2, info2 = fit_support(mu, prob, target, sup, 0.5)
+    assert info2["drop"] and info2["val_precision"] == 0.0 and info2["val_events"] > 0
+    assert info2["threshold_before"] == 0.5 and 0 < t2 <= 0.9
+    assert support_applies({"support": info2}) and not support_applies({"support": info}) and not support_applies({})
+    with pytest.raises(ValidationError, match="support rule"):
+        support_applies({"support": {"rule": "other", "drop": True}})
+
+
+@pytest.mark.parametrize("channels_last", [False, True])
+def test_every_decision_path_applies_the_support_rule_alike(channels_last):
+    net = perturbed_count_net(5, 0.3)
+    x, img = count_inputs(0.05)
+    if channels_last:
+        net.to(memory_format=torch.channels_last)
+        x, img = (t.contiguous(memory_format=torch.channels_last) for t in (x, img))
+    with torch.inference_mode():
+        mu, logit = net(img, x, return_heads=True)
+    t = float(torch.sigmoid(logit).flatten().sort().values[-60])
+    plain = decision_dict(t)
+    ruled = decision_dict(t, support={"rule": SUPPORT_RULE, "drop": True})
+    want = events_from_heads(mu, torch.sigmoid(logit), ruled, x)          # the probability rule
+    assert 0 < want.sum() < events_from_heads(mu, torch.sigmoid(logit), plain).sum()
+    with torch.inference_mode():
+        np.testing.assert_array_equal(decided_events(net, img, x, ruled), want)
+        dense = decided_entries(mu, logit, ruled, x)
+        got = sparse_decided_entries(net, img, x, ruled)
+        idx = np.flatnonzero(x[0].contiguous().numpy().ravel())
+        sp = SparseVoxels.of(idx, x[0].contiguous().numpy().ravel()[idx], tuple(x.shape[1:]), channels_last)
+        got_sparse = sparse_decided_entries(net, img, sp, ruled)
+    grid = np.zeros(mu.numel(), np.int64)
+    grid[dense[0]] = dense[1]
+    np.testing.assert_array_equal(grid.reshape(want.shape), want)
+    for g in (got, got_sparse):
+        np.testing.assert_array_equal(g[0], dense[0])
+        np.testing.assert_array_equal(g[1], dense[1])
+    with pytest.raises(ValidationError, match="inputs"):
+        events_from_heads(mu, torch.sigmoid(logit), ruled)
