@@ -154,3 +154,44 @@ def test_sparse_and_dense_windows_restore_the_same_events(tmp_path, monkeypatch,
     assert 0 < len(ref) and len(ref) != len(ev)
     np.testing.assert_array_equal(outs[0.0], ref)
     assert _diff(outs[1.0], ref) <= MAX_LAYOUT_DIFF
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_support_rule_removes_isolated_noise_on_the_restore_path(tmp_path, threads):
+    """Known answer through LearnedRestorer.restore (sparse windows): a fresh count network is
+    the identity at the event level, so with a decision that applies the support rule the
+    output is the input without the events of pixels that have no input event among their 8
+    neighbours in the window: the isolated noise goes, the edge stays, every window."""
+    from rdnet.nn.decision import SUPPORT_RULE
+    from rdnet.restore.learned import restorer_from_checkpoint
+    args = {"kind": "restore", "size": "tiny", "image_channels": 0, "bins": 4, "width": 4,
+            "restore_output": "counts"}
+    net = build_seeded(args, 0)                          # zero output conv: the identity start
+    extra = {"voxel": {"bins": 4, "mode": "hard", "normalize": None}, "window_us": WINDOW,
+             "decision": decision_dict(0.5, support={"rule": SUPPORT_RULE, "drop": True})}
+    path = tmp_path / "m.pt"
+    save_checkpoint(path, make_checkpoint(net, "restore", args, step=1, extra=extra, with_rng=False))
+    ev, lab = edge_noise_hot(seed=3, n_noise=120, hot=(50, 35))
+    r = restorer_from_checkpoint(path, has_frames=False, params=PARAMS)
+    prev = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        out = _restore_all(r, ev, frames=False)
+    finally:
+        torch.set_num_threads(prev)
+    want = []
+    for t0 in range(0, 60_000, WINDOW):
+        w = ev.slice_time(t0, t0 + WINDOW)
+        occ = np.zeros((ev.height + 2, ev.width + 2), int)
+        np.add.at(occ, (w.y.astype(int) + 1, w.x.astype(int) + 1), 1)
+        occ = occ > 0
+        nb = sum(occ[1 + dy:1 + dy + ev.height, 1 + dx:1 + dx + ev.width]
+                 for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))
+        want.append(nb[w.y, w.x] > 0)
+    keep = np.concatenate(want)
+    assert (lab == 1).sum() > 100 and 0 < (~keep & (lab == 1)).sum() and (~keep & (lab == 0)).sum() == 0
+    # the output events are the kept input events (at voxel times: the pixels are compared)
+    assert len(out) == int(keep.sum())
+    kept = ev.array[keep]
+    np.testing.assert_array_equal(np.sort(out["x"].astype(int) * 100 + out["y"]),
+                                  np.sort(kept["x"].astype(int) * 100 + kept["y"]))
