@@ -25,7 +25,6 @@ Writes ``benchmarks/results/restore_support.{json,md}``.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 import tempfile
@@ -97,18 +96,15 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "restore_support.json")
     ap.add_argument("--table-only", action="store_true", help="only rewrite OUT.md from OUT (.json)")
     args = ap.parse_args()
-    if args.table_only:
-        from rdnet.eval.report import write_text_atomic
-        write_text_atomic(args.out.with_suffix(".md"), table(json.loads(args.out.read_text())))
-        return
     sys.path.insert(0, str(ROOT / "benchmarks"))
+    from restore_train_range import rewrite_table, write_results
+    if args.table_only:
+        return rewrite_table(args.out, table)
     import torch
     from restore_learned_eval import eval_pairs
-    from restore_train_range import write_results
-    from restore_training_scenes import RECORDINGS, score_real
+    from restore_training_scenes import RECORDINGS, score_real_recordings
 
     from rdnet.config import load_params
-    from rdnet.restore.real import recordings
 
     torch.set_num_threads(2)
     params = load_params(ROOT / "params.yaml")
@@ -128,17 +124,10 @@ def main() -> None:
         for key, ck in ckpts.items():
             task, rule, seed = key.split("/")
             res["runs"][f"{task}/{rule}"][seed]["test"] = {m: scored[key][m] for m in METRICS}
-        found = dict(recordings([ROOT / "data" / "real", ROOT.parent / "shared" / "real"]))
-        for rec in RECORDINGS:
-            path = found.get(rec)
-            if path is None:
-                log.warning("%s not found: skipped", rec)
-                continue
+        def learned(rec):                   # image-guided where the recording has frames
             task = "image" if rec == "davis346_road" else "events"
-            runs = {"raw": ("raw", None), "baf": ("baf", None),
-                    **{k: ("rdnet", ck) for k, ck in ckpts.items() if k.startswith(task + "/")}}
-            res["real"][rec] = {"path": str(path.relative_to(ROOT.parent)),
-                                **score_real(path, rec, params, runs, Path(tmp) / "real")}
+            return {k: ck for k, ck in ckpts.items() if k.startswith(task + "/")}
+        res["real"] = score_real_recordings(RECORDINGS, params, learned, Path(tmp) / "real")
     write_results(args.out, res, table)
 
 

@@ -91,6 +91,12 @@ def table(res: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def rewrite_table(out: Path, render) -> None:
+    """Only the table: ``render`` of the results already in ``out`` (.json) to the .md beside it."""
+    from rdnet.eval.report import write_text_atomic
+    write_text_atomic(out.with_suffix(".md"), render(json.loads(out.read_text())))
+
+
 def write_results(out: Path, res: dict, render) -> None:
     """``res`` (with the load average after the run) to ``out`` (.json) and ``render(res)`` to
     the .md beside it, both written atomically; the table is logged too."""

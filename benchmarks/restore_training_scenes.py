@@ -77,6 +77,23 @@ def score_real(path: Path, name: str, params: dict, runs: dict[str, tuple[str, P
     return out
 
 
+def score_real_recordings(names, params: dict, learned, work: Path) -> dict:
+    """:func:`score_real` of every recording folder in ``names`` found under ``data/real`` or
+    ``../shared/real`` (the others skipped with a warning), with raw, BAF and each
+    ``label -> checkpoint`` of ``learned(name)`` as ``rdnet``: ``name -> {path, ...}``."""
+    from rdnet.restore.real import recordings
+    found = dict(recordings([ROOT / "data" / "real", ROOT.parent / "shared" / "real"]))
+    out = {}
+    for rec in names:
+        path = found.get(rec)
+        if path is None:
+            log.warning("%s not found: skipped", rec)
+            continue
+        runs = {"raw": ("raw", None), "baf": ("baf", None), **{k: ("rdnet", ck) for k, ck in learned(rec).items()}}
+        out[rec] = {"path": str(path.relative_to(ROOT.parent)), **score_real(path, rec, params, runs, work)}
+    return out
+
+
 def summary(res: dict) -> str:
     """Means over seeds per variant: simulated F1 / count ratio per test set, and per real
     recording the activity and background kept, ESR and consistency (BAF and raw beside)."""
@@ -141,17 +158,15 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "restore_training_scenes.json")
     ap.add_argument("--table-only", action="store_true", help="only rewrite OUT.md from OUT (.json)")
     args = ap.parse_args()
-    if args.table_only:
-        from rdnet.eval.report import write_text_atomic
-        write_text_atomic(args.out.with_suffix(".md"), table(json.loads(args.out.read_text())))
-        return
     sys.path.insert(0, str(ROOT / "benchmarks"))
+    from restore_train_range import rewrite_table
+    if args.table_only:
+        return rewrite_table(args.out, table)
     import torch
     from restore_learned_eval import eval_pairs
     from restore_train_range import train, write_results
 
     from rdnet.config import load_params
-    from rdnet.restore.real import recordings
 
     torch.set_num_threads(1)
     params = load_params(ROOT / "params.yaml")
@@ -196,15 +211,7 @@ def main() -> None:
                 run = res["variants"][name]["runs"][seed]
                 run["test"][test] = {m: scored[key][m] for m in METRICS}
                 run["threshold"], run["val_metrics"] = scored[key]["threshold"], scored[key]["val_metrics"]
-        found = dict(recordings([ROOT / "data" / "real", ROOT.parent / "shared" / "real"]))
-        for rec in args.recordings:
-            path = found.get(rec)
-            if path is None:
-                log.warning("%s not found: skipped", rec)
-                continue
-            runs = {"raw": ("raw", None), "baf": ("baf", None), **{k: ("rdnet", ck) for k, ck in ckpts.items()}}
-            res["real"][rec] = {"path": str(path.relative_to(ROOT.parent)),
-                                **score_real(path, rec, params, runs, Path(tmp))}
+        res["real"] = score_real_recordings(args.recordings, params, lambda rec: ckpts, Path(tmp))
     write_results(args.out, res, table)
 
 
