@@ -24,7 +24,7 @@ support (BAF, as in jAER and v2e) can remove at all:
   events-only restorer, as ``restore_real`` runs it) writes out, by pixel location (a
   restorer may move or add events, so this is output over input per band).
 
-Writes ``benchmarks/results/dvxplorer_background.{json,md}``.
+Writes ``benchmarks/results/dvxplorer_background.{json,md,png}``.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/dvxplorer_background.py
 """
@@ -129,8 +129,42 @@ def main(argv=None) -> int:
                      f"({100 * r['excess_share_of_background']:.1f} %) | "
                      f"{100 * r['baf_kept']:.1f} % | {100 * r['baf_kept_shuffled_times']:.1f} % | {rest} |")
     args.out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    figure(result, args.out.with_suffix(".png"))
     print("\n".join(lines))
     return 0
+
+
+def figure(result: dict, path: Path) -> Path:
+    """Per distance band: the events per pixel and second with the far-field noise floor (left),
+    and the share of the band's events BAF, BAF on shuffled times and the restorer keep (right)."""
+    from rdnet.eval.report import _figure, _save_figure
+    bands = [r for r in result["bands"] if r["band_px"] != [0, None]]
+    labels = [f">= {r['band_px'][0]} px" if r["band_px"][1] is None else f"{r['band_px'][0]}-{r['band_px'][1]} px"
+              for r in bands]
+    x = np.arange(len(bands))
+    fig, axes = _figure(1, 2, figsize=(10.0, 3.4))
+    ax = axes[0]
+    ax.bar(x, [r["rate_hz_per_pixel"] for r in bands], 0.6, color="C0", label="background events")
+    ax.axhline(result["noise_floor_hz_per_pixel"], color="k", lw=0.8, ls="--",
+               label=f"far-field floor {result['noise_floor_hz_per_pixel']:.2f} Hz")
+    ax.set_ylabel("events per pixel and second", fontsize=8)
+    ax.set_title("rate by distance to the activity mask", fontsize=9)
+    ax.legend(fontsize=7)
+    ax = axes[1]
+    series = [("BAF", "baf_kept", "C1"), ("BAF, times shuffled", "baf_kept_shuffled_times", "C7"),
+              ("rdnet restore (learned)", "restorer_out_over_in", "C2")]
+    series = [s for s in series if all(s[1] in r for r in bands)]
+    w = 0.8 / len(series)
+    for i, (name, key, color) in enumerate(series):
+        ax.bar(x + (i - len(series) / 2 + 0.5) * w, [100 * r[key] for r in bands], w, label=name, color=color)
+    ax.set_ylabel("% of the band's events kept", fontsize=8)
+    ax.set_title("what each method keeps (hot pixels removed first)", fontsize=9)
+    ax.legend(fontsize=7)
+    for a in axes:
+        a.set_xticks(x)
+        a.set_xticklabels(labels, fontsize=8)
+    fig.suptitle("DVXplorer take: the background outside the activity mask", fontsize=9)
+    return _save_figure(fig, path)
 
 
 def _restored_distances(recording: Path, dist_px: np.ndarray, hot: np.ndarray) -> np.ndarray:

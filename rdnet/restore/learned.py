@@ -132,6 +132,20 @@ class LearnedRestorer:
     def output(self) -> str:
         return self.net.output
 
+    @property
+    def info(self) -> dict:
+        """What ``rdnet restore`` records in OUT.json under ``model``: where the network came
+        from, its output and window, and the voxel -> event decision it applies (threshold
+        and whether the support rule drops events without a neighbour)."""
+        from rdnet.nn.decision import support_applies
+        d = self.decision or {}
+        sup = d.get("support") or {}
+        return {"kind": "learned", "source": self.source, "output": self.output,
+                "image_guided": bool(self.needs_frames), "window_us": self.window_us,
+                "decision": {"rule": d.get("rule"), "threshold": d.get("threshold"),
+                             "drops_unsupported": support_applies(d),
+                             "support_val_precision": sup.get("val_precision")}}
+
     def _image(self, frame: np.ndarray, height: int, width: int):
         from rdnet.deblur.pipeline import network_images
         from rdnet.events.recording import Frames
@@ -190,7 +204,7 @@ def _fail(path: Path, field: str, msg: str) -> ConfigError:
 def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapping | None = None,
                              device: str = "cpu", source: str | None = None) -> LearnedRestorer:
     """A :class:`LearnedRestorer` from one checkpoint file, validated (module docstring)."""
-    from rdnet.nn.decision import read_decision
+    from rdnet.nn.decision import read_decision, support_applies
     from rdnet.runtime import keep_freed_memory
     from rdnet.train import checkpoint as ckpt_mod
 
@@ -224,6 +238,7 @@ def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapp
     channels_last = prepare_for_inference(net, device)
     try:
         decision = read_decision(extra.get("decision"), net.output)
+        support_applies(decision)        # an unknown support rule: refused before any output is written
     except ValidationError as e:
         raise _fail(path, "extra.decision", str(e)) from None
     name = "rdnet-image" if image_channels else "rdnet-events"

@@ -25,7 +25,7 @@ def _save(path, kind="restore", image_channels=0, output="counts", decision=0.5,
     net = build_seeded(args, 0)
     extra = {"voxel": {"bins": bins, "mode": "hard", "normalize": None}, "window_us": 30000}
     if decision is not None:
-        extra["decision"] = decision_dict(decision)
+        extra["decision"] = decision if isinstance(decision, dict) else decision_dict(decision)
     save_checkpoint(path, make_checkpoint(net, kind, args, step=1, extra=extra, with_rng=False))
     return path
 
@@ -49,6 +49,9 @@ def test_identity_restorer_passes_the_stream_through(tmp_path):
                                   voxel_grid(inside, 3, 0, 30000, polarity="split"))
     # a folder with seed<k>/model.pt is found too
     assert load_restorer(tmp_path / "m", has_frames=True, params=PARAMS).name == "rdnet-events"
+    info = r.info                                       # what OUT.json records under "model"
+    assert info["source"].endswith("model.pt") and info["output"] == "counts" and not info["image_guided"]
+    assert info["decision"]["threshold"] == 0.5 and info["decision"]["drops_unsupported"] is False
 
 
 def test_image_guided_restorer_needs_frames_and_reads_one(tmp_path):
@@ -70,6 +73,9 @@ def test_wrong_checkpoints_are_config_errors_naming_file_and_field(tmp_path):
         load_restorer(_save(tmp_path / "b4.pt", bins=4), has_frames=False, params=PARAMS)
     with pytest.raises(ConfigError, match=r"nodec\.pt.*decision"):
         load_restorer(_save(tmp_path / "nodec.pt", decision=None), has_frames=False, params=PARAMS)
+    with pytest.raises(ConfigError, match=r"rule\.pt.*support rule"):
+        load_restorer(_save(tmp_path / "rule.pt", decision=decision_dict(0.5, support={"rule": "x", "drop": True})),
+                      has_frames=False, params=PARAMS)
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(ConfigError, match="junk.pt"):
         load_restorer(tmp_path / "junk.pt", has_frames=False, params=PARAMS)
