@@ -29,7 +29,7 @@ import torch
 
 from rdnet.config import load_params, section
 from rdnet.eval.events import match_metrics
-from rdnet.nn.decision import decide_counts, polarity_grid, split_signed, support_applies
+from rdnet.nn.decision import decide_counts, decision_gain, polarity_grid, split_signed, support_applies
 from rdnet.train import checkpoint as ckpt_mod
 from rdnet.train.data import PairsDataset
 from rdnet.train.loop import predict_counts
@@ -99,7 +99,8 @@ def eval_pairs(pairs: Path, ckpts: dict[str, Path], also_thresholds=(), stcf: np
         if net.output == "counts":
             decision = ck["extra"]["decision"]
             thr = float(decision["threshold"])
-            restored = decide_counts(out, prob, thr, support if support_applies(decision) else None)
+            restored = decide_counts(out, prob, thr, support if support_applies(decision) else None,
+                                     decision_gain(decision))
             for t in also_thresholds:      # the same network with another (not fitted) threshold
                 res[f"{name}@{t}"] = {**pair_metrics(decide_counts(out, prob, t), target, degraded), "threshold": t}
         else:

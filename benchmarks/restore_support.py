@@ -36,9 +36,13 @@ METRICS = ("precision", "recall", "f1", "count_ratio", "l1_all", "l1_events")
 log = logging.getLogger("restore_support")
 
 
-def refit(path: Path, out: Path, support_rule: bool) -> dict:
+#: decision variants: name -> (support rule, count gain)
+RULES = {"threshold": (False, False), "support": (True, False), "support+gain": (True, True)}
+
+
+def refit(path: Path, out: Path, support_rule: bool, count_gain: bool = False) -> dict:
     """A copy of checkpoint ``path`` at ``out`` whose decision is refitted on its validation
-    rows (with or without the support rule); returns that decision."""
+    rows (with or without the support rule and the count gain); returns that decision."""
     import numpy as np
     import torch
 
@@ -48,7 +52,8 @@ def refit(path: Path, out: Path, support_rule: bool) -> dict:
     net = ckpt_mod.model_from_checkpoint(path, ck).eval()
     extra = ck["extra"]
     decision = fit_decision(net, ROOT / extra["train_path"], np.asarray(extra["val_rows"], np.int64),
-                            torch.device("cpu"), image=net.image_channels > 0, support_rule=support_rule)
+                            torch.device("cpu"), image=net.image_channels > 0, support_rule=support_rule,
+                            count_gain=count_gain)
     out.parent.mkdir(parents=True, exist_ok=True)
     ckpt_mod.save_checkpoint(out, {**ck, "extra": {**extra, "decision": decision}})
     return decision
@@ -56,12 +61,13 @@ def refit(path: Path, out: Path, support_rule: bool) -> dict:
 
 def table(res: dict) -> str:
     import numpy as np
-    lines = [f"Decisions refitted on each restorer's validation rows, without and with the support rule "
+    lines = [f"Decisions refitted on each restorer's validation rows: the threshold alone, with the support rule, and with the support rule and the count gain "
              f"(`python benchmarks/restore_support.py`, seeds {res['seeds']}). Test: `data/pairs/test.h5` "
              f"(raw: F1 {res['raw']['f1']:.3f}, count ratio {res['raw']['count_ratio']:.2f}, "
              f"all-voxel L1 {res['raw']['l1_all']:.4f}).", "",
              "| restorer | rule | seed | threshold | validation: unsupported kept voxels (share of kept), precision | "
-             "test F1 | test count ratio | test all-voxel L1 |", "|---|---|---|---|---|---|---|---|"]
+             "count gain (validation F1) | test F1 | test count ratio | test all-voxel L1 |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for label, runs in res["runs"].items():
         task, rule = label.split("/")
         for seed, r in runs.items():
@@ -69,7 +75,9 @@ def table(res: dict) -> str:
             v = "-" if not sup else (f"{sup['val_events']:,} ({100 * sup['val_share_of_kept']:.1f} %), "
                                      f"{sup['val_precision']:.3f}" + (" -> dropped" if sup["drop"] else ""))
             t = r["test"]
-            lines.append(f"| {task} | {rule} | {seed} | {r['decision']['threshold']:.3f} | {v} | {t['f1']:.3f} | "
+            cg = r["decision"].get("count_gain")
+            g = "-" if not cg else f"{cg['gain']:g} ({cg['val_f1'][format(cg['gain'], 'g')]:.3f})"
+            lines.append(f"| {task} | {rule} | {seed} | {r['decision']['threshold']:.3f} | {v} | {g} | {t['f1']:.3f} | "
                          f"{t['count_ratio']:.2f} | {t['l1_all']:.4f} |")
     lines += ["", "Real recordings (as `restore_real` scores them; means over seeds; activity / background = share "
               "of the raw events kept inside / outside the activity mask):", "",
@@ -112,11 +120,11 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         ckpts = {}
         for task, name in TASKS.items():
-            for rule in ("threshold", "support"):
+            for rule, (support_rule, count_gain) in RULES.items():
                 res["runs"][f"{task}/{rule}"] = {}
                 for seed in args.seeds:
-                    out = Path(tmp) / name / rule / f"seed{seed}" / "model.pt"
-                    decision = refit(ROOT / "models" / name / f"seed{seed}" / "model.pt", out, rule == "support")
+                    out = Path(tmp) / name / rule.replace("+", "_") / f"seed{seed}" / "model.pt"
+                    decision = refit(ROOT / "models" / name / f"seed{seed}" / "model.pt", out, support_rule, count_gain)
                     ckpts[f"{task}/{rule}/{seed}"] = out
                     res["runs"][f"{task}/{rule}"][str(seed)] = {"decision": decision}
         scored = eval_pairs(args.test, ckpts)

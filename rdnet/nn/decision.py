@@ -50,17 +50,55 @@ RULE_THRESHOLD = "occupancy_threshold"
 RULE_ROUND = "round"
 
 
-def decide_counts(mu: np.ndarray, prob: np.ndarray, threshold: float, supported=None) -> np.ndarray:
+def decide_counts(mu: np.ndarray, prob: np.ndarray, threshold: float, supported=None,
+                  gain: float = 1.0) -> np.ndarray:
     """Whole non-negative event counts (int64, the shape of ``mu``): ``round(mu)`` where
     ``prob >= threshold``, else 0; with ``supported`` (bool, broadcastable to ``mu``, e.g.
-    (n, 1, H, W) from :func:`input_support`) also 0 where it is False."""
+    (n, 1, H, W) from :func:`input_support`) also 0 where it is False; ``gain``: the count
+    head's excess over one event scaled (:func:`gained`)."""
     mu, prob = np.asarray(mu), np.asarray(prob)
     if mu.shape != prob.shape:
         raise ValidationError("decision", f"mu {mu.shape} and probabilities {prob.shape} differ")
     keep = prob >= threshold
     if supported is not None:
         keep = keep & np.asarray(supported, bool)
-    return np.where(keep, np.rint(np.maximum(mu, 1.0)), 0).astype(np.int64)
+    return np.where(keep, np.rint(np.maximum(gained(mu, gain), 1.0)), 0).astype(np.int64)
+
+
+def gained(mu, gain: float):
+    """The count head with its excess over one event scaled: ``1 + gain (mu - 1)``; ``mu``
+    itself (the same object) for gain 1, so decisions without a fitted gain keep their bits."""
+    return mu if gain == 1.0 else 1.0 + gain * (mu - 1.0)
+
+
+#: the count gains :func:`fit_count_gain` tries (1 = the count head as it is).
+COUNT_GAINS = (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)
+
+
+def decision_gain(decision: Mapping | None) -> float:
+    """The fitted count gain of ``decision`` (1 when it has none)."""
+    g = (decision or {}).get("count_gain")
+    return 1.0 if g is None else float(g["gain"])
+
+
+def fit_count_gain(mu: np.ndarray, prob: np.ndarray, target: np.ndarray, supported, score,
+                   gains=COUNT_GAINS) -> tuple[float, float, dict]:
+    """The count gain of the decision, fitted on validation rows: for each gain the
+    threshold is refitted to the count target (:func:`fit_threshold`, over the supported
+    voxels when ``supported`` is given) and the decided events scored by ``score(counts) ->
+    F1``; the gain with the highest F1 wins (the smallest on ties). Returns ``(gain,
+    threshold, info)``."""
+    mu, prob = np.asarray(mu), np.asarray(prob)
+    p = prob if supported is None else np.where(np.broadcast_to(np.asarray(supported, bool), prob.shape), prob, 0.0)
+    total = int(np.rint(np.asarray(target)).sum())
+    tried = []
+    for g in gains:
+        t = fit_threshold(gained(mu, g), p, total)
+        tried.append((float(score(decide_counts(mu, prob, t, supported, g))), -float(g), float(t)))
+    f1, neg_g, t = max(tried)
+    info = {"gain": -neg_g, "val_f1": {f"{-ng:g}": f for f, ng, _ in tried},
+            "thresholds": {f"{-ng:g}": tt for _, ng, tt in tried}}
+    return -neg_g, t, info
 
 
 #: ``decision["support"]["rule"]``: the one support rule (module docstring).
@@ -200,7 +238,7 @@ def events_from_heads(mu, prob, decision: Mapping | None, inputs=None) -> np.nda
     one, its support rule on the network's count ``inputs`` (required then)."""
     threshold = float(read_decision(decision, "counts")["threshold"])
     return polarity_grid(decide_counts(mu.float().cpu().numpy(), prob.float().cpu().numpy(), threshold,
-                                       _support_of(decision, inputs)))
+                                       _support_of(decision, inputs), decision_gain(decision)))
 
 
 def _support_of(decision: Mapping | None, inputs) -> np.ndarray | None:
@@ -313,7 +351,8 @@ def decided_entries(mu, logit, decision: Mapping | None, inputs=None) -> tuple[n
     if lt == float("inf"):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     support = _support_of(decision, inputs)
-    return drop_unsupported(*_kept_entries(logit >= lt, lambda *where: mu[where]), tuple(logit.shape), support)
+    return drop_unsupported(*_kept_entries(logit >= lt, lambda *where: mu[where], decision_gain(decision)),
+                            tuple(logit.shape), support)
 
 
 def drop_unsupported(index: np.ndarray, counts: np.ndarray, shape: tuple, support: np.ndarray | None):
@@ -337,7 +376,8 @@ def sparse_decided_entries(stage1, image, counts, decision: Mapping | None) -> t
     if lt == float("inf"):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     keep, mu_at = stage1.sparse_heads(image, counts, lt)
-    return drop_unsupported(*_kept_entries(keep, mu_at), tuple(keep.shape), _support_of(decision, counts))
+    return drop_unsupported(*_kept_entries(keep, mu_at, decision_gain(decision)), tuple(keep.shape),
+                            _support_of(decision, counts))
 
 
 def _decision_logit(decision: Mapping | None) -> float:
@@ -346,10 +386,10 @@ def _decision_logit(decision: Mapping | None) -> float:
     return logit_threshold(float(read_decision(decision, "counts")["threshold"]))
 
 
-def _kept_entries(keep, mu_at) -> tuple[np.ndarray, np.ndarray]:
+def _kept_entries(keep, mu_at, gain: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """``(index, counts)`` of :func:`decided_entries` from the bool mask ``keep`` (torch,
     (n, C, H, W), any memory format) and ``mu_at(n, c, y, x)``, the count head at the
-    kept voxels (index arrays, in increasing C order)."""
+    kept voxels (index arrays, in increasing C order); ``gain``: :func:`gained`."""
     shape = tuple(keep.shape)
     keep = keep.cpu()
     # read the mask in memory order (a channels_last tensor is NHWC in memory), then map
@@ -368,7 +408,7 @@ def _kept_entries(keep, mu_at) -> tuple[np.ndarray, np.ndarray]:
     if not index.size:
         return index, np.zeros(0, np.int64)
     mu_kept = mu_at(*(w[order] for w in where)).float().cpu().numpy()
-    counts = np.rint(np.maximum(mu_kept, 1.0)).astype(np.int64)     # decide_counts' rounding
+    counts = np.rint(np.maximum(gained(mu_kept, gain), 1.0)).astype(np.int64)     # decide_counts' rounding
     return index, counts
 
 

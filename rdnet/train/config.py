@@ -44,6 +44,10 @@ class TrainConfig:
     validation rows, those voxels are real less often than the occupancy threshold
     (:func:`rdnet.nn.decision.fit_support`; docs/restoration.md, "Events with no
     neighbour"). False = the threshold alone (every decision before it).
+    ``fit_count_gain`` (counts output): whether the fitted decision also scales the count
+    head's excess over one event, ``1 + g (mu - 1)``, with the gain ``g`` of
+    :data:`rdnet.nn.decision.COUNT_GAINS` whose refitted threshold gives the highest F1 on the
+    validation rows (:func:`rdnet.nn.decision.fit_count_gain`). False = the count head as it is.
     ``val_sequences``: the last sequences of the training file held out from stage-1
     training (tasks restore, restore_events) to fit the voxel -> event decision
     (:mod:`rdnet.nn.decision`); needed by ``counts`` (>= 1), 0 = train on every row.
@@ -83,6 +87,7 @@ class TrainConfig:
     occupancy_weight: float = 1.0
     clean_fraction: float = 0.0
     support_rule: bool = False
+    fit_count_gain: bool = False
     val_sequences: int = 0
     stage2_input: Literal["restored", "dual"] = "restored"
     feature_grad: bool = False

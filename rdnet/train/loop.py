@@ -228,17 +228,19 @@ def predict_counts(net: nn.Module, data: PairsDataset, device: torch.device, *, 
 
 
 def fit_decision(net: nn.Module, train_path: str | Path, val_rows, device: torch.device, *,
-                 image: bool = True, support_rule: bool = True) -> dict:
+                 image: bool = True, support_rule: bool = True, count_gain: bool = False) -> dict:
     """The voxel -> event decision of a trained RestoreNet (``extra["decision"]``):
     counts output -- the occupancy threshold fitted on the validation rows so that the
     restored event count matches the undegraded one (:func:`rdnet.nn.decision.fit_threshold`)
     and, with ``support_rule`` (``train.support_rule``), whether to drop the voxels without
     a neighbouring input event (:func:`rdnet.nn.decision.fit_support`, which refits the
-    threshold when it drops them); signed output -- the paper's rounding. Both with the
+    threshold when it drops them), and with ``count_gain`` (``train.fit_count_gain``) the
+    count head's gain (:func:`rdnet.nn.decision.fit_count_gain`: the gain whose refitted
+    threshold gives the highest validation F1); signed output -- the paper's rounding. Both with the
     validation event metrics (:func:`rdnet.eval.events.match_metrics`) of the decided events."""
     from rdnet.eval.events import match_metrics
-    from rdnet.nn.decision import (decide_counts, decision_dict, fit_support, fit_threshold, polarity_grid,
-                                   split_signed, support_applies)
+    from rdnet.nn.decision import (decide_counts, decision_dict, decision_gain, fit_count_gain, fit_support,
+                                   fit_threshold, polarity_grid, split_signed, support_applies)
     if len(val_rows) == 0:
         if net.output == "counts":
             raise ConfigError("train.val_sequences", "the counts decision needs validation rows")
@@ -254,8 +256,13 @@ def fit_decision(net: nn.Module, train_path: str | Path, val_rows, device: torch
         threshold = fit_threshold(out, prob, int(target.sum()))
         if support_rule:
             threshold, info["support"] = fit_support(out, prob, target, support, threshold)
-        restored = decide_counts(out, prob, threshold, support if support_applies(info) else None)
-        metrics = match_metrics(polarity_grid(restored), polarity_grid(np.rint(target).astype(np.int64)))
+        sup = support if support_applies(info) else None
+        reference = polarity_grid(np.rint(target).astype(np.int64))
+        if count_gain:
+            _, threshold, info["count_gain"] = fit_count_gain(
+                out, prob, target, sup, lambda c: match_metrics(polarity_grid(c), reference)["f1"])
+        restored = decide_counts(out, prob, threshold, sup, decision_gain(info))
+        metrics = match_metrics(polarity_grid(restored), reference)
     else:
         threshold = None
         metrics = match_metrics(polarity_grid(split_signed(np.rint(out)).astype(np.int64)),
@@ -521,7 +528,8 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
         return last_path
     if task in RESTORE_TASKS:
         extra["decision"] = fit_decision(net, train_path, val_rows, device, image=task != "restore_events",
-                                         support_rule=cfg.support_rule) if main else None
+                                         support_rule=cfg.support_rule,
+                                         count_gain=cfg.fit_count_gain) if main else None
     elif task == "rdnet" and init_checkpoint is not None:
         init_extra = ckpt_mod.read_checkpoint(init_checkpoint).get("extra", {})
         extra["decision"] = init_extra.get("decision")
@@ -530,7 +538,7 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
             # stage 2 fine-tuned stage 1: its occupancy moved, so the threshold is refitted on
             # stage 1's held-out rows (stage 2 trained on them: a count match, not a test score)
             extra["decision"] = {**fit_decision(net.restore, train_path, np.asarray(val, np.int64), device,
-                                                support_rule=cfg.support_rule),
+                                                support_rule=cfg.support_rule, count_gain=cfg.fit_count_gain),
                                  "refit": "after stage 2 fine-tuning, on the stage-1 validation rows"}
     save(final_path, step, full=False)
     if main and last_path.exists():

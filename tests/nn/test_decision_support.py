@@ -102,3 +102,41 @@ def test_every_decision_path_applies_the_support_rule_alike(channels_last):
         np.testing.assert_array_equal(g[1], dense[1])
     with pytest.raises(ValidationError, match="inputs"):
         events_from_heads(mu, torch.sigmoid(logit), ruled)
+
+
+def test_count_gain_scales_the_excess_and_is_fitted_where_the_head_undercounts():
+    from rdnet.eval.events import match_metrics
+    from rdnet.nn.decision import decision_gain, fit_count_gain, gained, polarity_grid
+    mu = np.array([[[[1.0, 2.0, 3.0, 1.2]]]], np.float32)
+    assert gained(mu, 1.0) is mu
+    np.testing.assert_array_equal(decide_counts(mu, np.ones_like(mu), 0.5, gain=1.5)[0, 0, 0], [1, 2, 4, 1])
+    assert decision_gain({}) == 1.0 and decision_gain({"count_gain": {"gain": 2.0}}) == 2.0
+    # a count head that reports half the excess: the true counts are 1 + 2 (mu - 1)
+    rng = np.random.default_rng(1)
+    mu = (1.0 + rng.integers(0, 4, (2, 4, 8, 8))).astype(np.float32)   # integer excess: no two gains round alike
+    prob = rng.uniform(0.2, 1.0, mu.shape).astype(np.float32)
+    real = prob > 0.5                                           # the likelier voxels are the real ones
+    target = np.where(real, 1 + 2 * (mu - 1), 0)
+    ref = polarity_grid(np.rint(target).astype(np.int64))
+    g, t, info = fit_count_gain(mu, prob, target, None, lambda c: match_metrics(polarity_grid(c), ref)["f1"])
+    assert g == 2.0 and info["gain"] == 2.0 and set(info["val_f1"]) >= {"1", "2"}
+    assert info["val_f1"]["2"] == 1.0 > info["val_f1"]["1"] and t == info["thresholds"]["2"]
+
+
+def test_every_decision_path_applies_the_count_gain_alike():
+    net = perturbed_count_net(5, 0.3)
+    x, img = count_inputs(0.4)
+    with torch.no_grad():
+        net.net.ending.bias[:6] += 1.5                            # a count head above 1 somewhere
+    with torch.inference_mode():
+        mu, logit = net(img, x, return_heads=True)
+    t = float(torch.sigmoid(logit).flatten().sort().values[-80])
+    ruled = decision_dict(t, support={"rule": SUPPORT_RULE, "drop": True}, count_gain={"gain": 2.5})
+    want = events_from_heads(mu, torch.sigmoid(logit), ruled, x)
+    assert want.sum() > events_from_heads(mu, torch.sigmoid(logit), {**ruled, "count_gain": None}, x).sum()
+    with torch.inference_mode():
+        np.testing.assert_array_equal(decided_events(net, img, x, ruled), want)
+        got = sparse_decided_entries(net, img, x, ruled)
+    grid = np.zeros(mu.numel(), np.int64)
+    grid[got[0]] = got[1]
+    np.testing.assert_array_equal(grid.reshape(want.shape), want)
