@@ -23,7 +23,16 @@ them. Why: the trained count networks keep about 80 % of the isolated input even
 3 % of them are real (validation rows of the study's restorers; docs/restoration.md, "Events
 with no neighbour"): the identity start (+4 on the logit of every occupied input voxel)
 and a class that is 1 % of the events leave them miscalibrated. Decisions without the key
-(checkpoints written before it) do not apply it.
+(checkpoints written before it) do not apply it. Inference on a sparse window
+(:func:`sparse_decided_entries`) looks up only the kept voxels' neighbours among the input
+events (:func:`entry_support`); the dense paths use the whole-frame map.
+
+**Count gain** (optional, ``decision["count_gain"]``, ``train.fit_count_gain``, off in the
+study): the count head's excess over one event scaled, ``1 + g (mu - 1)``
+(:func:`gained`), with ``g`` the gain of :data:`COUNT_GAINS` whose decided events score the
+best F1 on the validation rows, the threshold refitted for each (:func:`fit_count_gain`).
+It raised the simulated test F1 but lost real motion (docs/restoration.md), so the study's
+decisions have none; without the key the gain is 1 and the counts keep their bits.
 
 The signed output of the paper has no fitted decision: ``round(v)`` events of sign
 ``sign(v)`` per voxel (:func:`rdnet.events.voxel.voxel_events`), ``{"rule": "round"}``.
@@ -211,6 +220,7 @@ def read_decision(decision: Mapping | None, output: str) -> dict:
     t = float(decision["threshold"])
     if not 0.0 <= t <= 1.0 + 1e-6:
         raise ValidationError("extra.decision.threshold", f"must be in [0, 1], got {t}")
+    support_applies(decision)          # an unknown support rule is refused here, before any use
     return dict(decision)
 
 
@@ -375,9 +385,41 @@ def sparse_decided_entries(stage1, image, counts, decision: Mapping | None) -> t
     lt = _decision_logit(decision)
     if lt == float("inf"):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    from rdnet.nn.sparse import SparseVoxels
     keep, mu_at = stage1.sparse_heads(image, counts, lt)
-    return drop_unsupported(*_kept_entries(keep, mu_at, decision_gain(decision)), tuple(keep.shape),
-                            _support_of(decision, counts))
+    index, kept = _kept_entries(keep, mu_at, decision_gain(decision))
+    if isinstance(counts, SparseVoxels) and support_applies(decision):
+        ok = entry_support(index, tuple(keep.shape), counts)      # the kept voxels' neighbours only
+        return index[ok], kept[ok]
+    return drop_unsupported(index, kept, tuple(keep.shape), _support_of(decision, counts))
+
+
+def entry_support(index: np.ndarray, shape: tuple, inputs) -> np.ndarray:
+    """(k,) bool: whether the pixel of each entry ``index`` (flat C-order positions in
+    ``shape`` = (1, C, H, W)) has an input event among its 8 neighbours in the window, the
+    rule of :func:`input_support`, for a :class:`rdnet.nn.sparse.SparseVoxels` input: only
+    the entries' neighbours are looked up among the input's event pixels, no (H, W) map."""
+    n, _, H, W = shape
+    if n != 1:
+        raise ValidationError("counts", f"sparse inputs are one sample, got {n}")
+    _, y, x = inputs.coords()
+    v = inputs.values > 0
+    occupied = np.unique(y[v].astype(np.int64) * W + x[v])
+    pix = np.asarray(index, np.int64) % (H * W)
+    py, px = pix // W, pix % W
+    found = np.zeros(pix.size, bool)
+    if not occupied.size:
+        return found
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy == dx == 0:
+                continue
+            ny, nx = py + dy, px + dx
+            inside = (ny >= 0) & (ny < H) & (nx >= 0) & (nx < W)
+            q = ny * W + nx
+            at = np.minimum(np.searchsorted(occupied, q), occupied.size - 1)
+            found |= inside & (occupied[at] == q)
+    return found
 
 
 def _decision_logit(decision: Mapping | None) -> float:

@@ -10,8 +10,8 @@ from _nets import count_inputs, perturbed_count_net
 
 from rdnet.errors import ValidationError
 from rdnet.nn.decision import (SUPPORT_RULE, decide_counts, decided_entries, decided_events, decision_dict,
-                               events_from_heads, fit_support, input_support, neighbour_support,
-                               sparse_decided_entries, support_applies)
+                               entry_support, events_from_heads, fit_support, input_support, neighbour_support,
+                               read_decision, sparse_decided_entries, support_applies)
 from rdnet.nn.sparse import SparseVoxels
 
 
@@ -38,6 +38,17 @@ def test_input_support_from_dense_and_sparse_inputs_agree():
     sp = SparseVoxels.of(idx, x[0].numpy().ravel()[idx], tuple(x.shape[1:]))
     np.testing.assert_array_equal(input_support(sp), dense)
     np.testing.assert_array_equal(input_support(x.numpy()), dense)
+    # the per-entry lookup of the sparse decision path: every voxel of the grid, borders included
+    C, H, W = x.shape[1:]
+    every = np.arange(C * H * W)
+    np.testing.assert_array_equal(entry_support(every, (1, C, H, W), sp), np.tile(dense[0, 0].ravel(), C))
+    empty = SparseVoxels.of(idx[:0], x[0].numpy().ravel()[idx[:0]], tuple(x.shape[1:]))
+    assert not entry_support(every, (1, C, H, W), empty).any()
+
+
+def test_an_unknown_support_rule_is_refused_when_the_decision_is_read():
+    with pytest.raises(ValidationError, match="support rule"):
+        read_decision(decision_dict(0.5, support={"rule": "other", "drop": True}), "counts")
 
 
 def test_an_isolated_event_is_dropped_and_a_supported_pair_kept():
