@@ -20,6 +20,10 @@ class DeblurConfig:
     ``max_frames``: deblur only the first N frames (None = all).
     ``montage_frames``: frames shown in ``montage.png`` (0 = no figure); ``png``: also
     write every deblurred frame as an 8-bit PNG.
+    ``event_times``: the restored event stream's timestamps: ``input`` (the events stage 1
+    keeps are the recording's own, with their times; only those a voxel holds beyond its
+    input are spread over the bin: :mod:`rdnet.events.select`) or ``bins`` (every event
+    spread evenly over its bin). The voxels, and so the deblurred frames, are the same.
     """
 
     window: Literal["auto", "exposure", "interval"] = "auto"
@@ -29,6 +33,7 @@ class DeblurConfig:
     max_frames: Optional[int] = None
     montage_frames: int = 3
     png: bool = True
+    event_times: Literal["input", "bins"] = "input"
 
     def __post_init__(self):
         positive("deblur.batch_size", self.batch_size, allow_zero=False)
@@ -37,5 +42,7 @@ class DeblurConfig:
         if self.max_frames is not None and self.max_frames < 2:
             raise ConfigError("deblur.max_frames", f"must be >= 2 (consecutive frames are compared) "
                               f"or null, got {self.max_frames}")
+        if self.event_times not in ("input", "bins"):
+            raise ConfigError("deblur.event_times", f"must be input or bins, got {self.event_times!r}")
         if self.device not in ("cpu", "cuda", "auto"):
             raise ConfigError("deblur.device", f"must be cpu, cuda or auto, got {self.device!r}")

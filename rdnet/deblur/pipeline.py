@@ -22,7 +22,10 @@ as ``rdnet restore --method rdnet`` applies it), decided on the heads of the sta
 that gives the voxels (:func:`rdnet.eval.stage1.run_stage1`: stage 1 runs once per window).
 
 The *restored event stream* is stage 1's output over the interval windows, rounded to
-whole events (:func:`rdnet.events.voxel.voxel_events`); it covers the recording from the
+whole events; with ``deblur.event_times: input`` the events a voxel keeps are the window's
+own recorded events there, with their timestamps (:func:`rdnet.events.select.select_events`),
+with ``bins`` every event is spread over its bin (:func:`rdnet.events.voxel.voxel_events`);
+it covers the recording from the
 first to the last frame, so that the events between consecutive frames can be scored
 against the frames (:mod:`rdnet.deblur.consistency`). When the deblur windows are the
 interval windows one stage-1 pass serves both; otherwise stage 1 runs a second time on
@@ -41,6 +44,7 @@ from rdnet.errors import FormatError, ValidationError
 from rdnet.eval.stage1 import signed_counts
 from rdnet.events.core import Events, concatenate
 from rdnet.events.recording import Frames
+from rdnet.events.select import select_events, signed_entries
 from rdnet.events.voxel import normalization_scale, voxel_events, voxel_grid
 from rdnet.events.voxel_config import VoxelConfig
 from rdnet.nn.decision import polarity_grid, read_decision
@@ -202,19 +206,34 @@ class DeblurBatch:
 
 
 def _to_events(restored: np.ndarray, scales: np.ndarray, windows: FrameWindows, index: np.ndarray,
-               mode: str) -> Events:
-    parts = [voxel_events(restored[i], int(windows.start_us[k]), int(windows.duration_us[k]),
-                          mode=mode, scale=float(scales[i])) for i, k in enumerate(index)]
+               mode: str, inputs: Events | None = None) -> Events:
+    """The events of the restored grids (signed or per-polarity, times ``scales``) of the
+    windows ``index``: taken from ``inputs`` where they have them (hard binning only;
+    :func:`rdnet.events.select.select_events`, each window's inputs as its voxel grid holds
+    them, end included), else spread over the bins."""
+    parts = []
+    for i, k in enumerate(index):
+        t0, dur, scale = int(windows.start_us[k]), int(windows.duration_us[k]), float(scales[i])
+        if inputs is None or mode != "hard":
+            parts.append(voxel_events(restored[i], t0, dur, mode=mode, scale=scale))
+            continue
+        grid = restored[i] if scale == 1.0 else restored[i].astype(np.float64) * scale
+        entries, counts, shape = signed_entries(grid)
+        parts.append(select_events(inputs.slice_time(t0, t0 + dur + 1), entries, counts, shape, t0, dur))
     return concatenate(parts, sort=True)
 
 
 def iter_deblur(net, images: np.ndarray, events: Events, deblur_windows: FrameWindows,
                 event_windows: FrameWindows, voxel: VoxelConfig, *, batch_size: int = 4,
                 device: torch.device | str = "cpu", progress: bool = False,
-                decision: dict | None = None) -> Iterator[DeblurBatch]:
+                decision: dict | None = None, event_times: str = "input") -> Iterator[DeblurBatch]:
     """Run both stages over ``images`` (N, C, H, W) in batches of ``batch_size`` frames
     (module docstring); yields one :class:`DeblurBatch` per batch. ``decision``: the
-    checkpoint's voxel -> event decision (required for a count-output stage 1)."""
+    checkpoint's voxel -> event decision (required for a count-output stage 1);
+    ``event_times``: ``deblur.event_times`` (input or bins)."""
+    if event_times not in ("input", "bins"):
+        raise ValidationError("deblur.event_times", f"must be input or bins, got {event_times!r}")
+    inputs = events if event_times == "input" else None
     from tqdm.auto import tqdm
 
     n, _, H, W = images.shape
@@ -235,7 +254,7 @@ def iter_deblur(net, images: np.ndarray, events: Events, deblur_windows: FrameWi
     def stream(restored, decided, scales, windows, idx):
         """Restored events of the windows: rounded signed voxels, or the decided counts
         (of the same stage-1 pass)."""
-        return _to_events(decided if split else restored, scales, windows, idx, voxel.mode)
+        return _to_events(decided if split else restored, scales, windows, idx, voxel.mode, inputs)
 
     def signed(grids):                   # the raw signed voxels of the figures
         if not split:

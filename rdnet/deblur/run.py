@@ -153,7 +153,7 @@ def deblur_recording(recording: str | Path, out: str | Path, params: dict, *,
         with H5RecordingWriter(stage_data / "restored.h5", W, H, x.sensor_name) as w:
             for b in iter_deblur(x.loaded.net, images, x.events, x.deblur_windows, x.event_windows, x.voxel,
                                  batch_size=cfg.batch_size, device=x.device, progress=progress,
-                                 decision=x.loaded.decision):
+                                 decision=x.loaded.decision, event_times=cfg.event_times):
                 restored_parts.append(b.events)
                 if b.deblur_events is not None:
                     deblur_parts.append(b.deblur_events)

@@ -10,6 +10,8 @@ from rdnet.config import positive
 from rdnet.errors import ConfigError
 
 METHODS = ("rdnet", "baf", "stcf", "gef", "raw", "ednccn")
+#: how a learned restorer's voxel counts become events (``RestoreConfig.event_times``)
+EVENT_TIMES = ("input", "bins")
 
 
 @dataclass(frozen=True)
@@ -39,7 +41,12 @@ class RestoreConfig:
     ``rdnet calibrate`` fitted (``rdnet restore --calibration REPORT``); 0: off.
     ``frame_compression``: how the frames copied to OUT.h5 are stored (none, gzip or lzf;
     events are always gzip): APS frames hardly compress (gzip: 16 % smaller on the DAVIS346
-    road recording) and gzip costs 7 % of the learned restorer's time there."""
+    road recording) and gzip costs 7 % of the learned restorer's time there.
+    ``event_times``: how the learned restorer's voxel counts become events: ``input`` (the
+    events it keeps are the recording's own, with their timestamps; only the events a voxel
+    gets beyond its input are spread over the bin: :mod:`rdnet.events.select`) or ``bins``
+    (every output event spread evenly over its bin, as the voxel grid alone allows). Both
+    give the same voxel grid."""
 
     method: Literal["rdnet", "baf", "stcf", "gef", "raw", "ednccn"] = "rdnet"
     window_us: int = 50_000
@@ -61,6 +68,7 @@ class RestoreConfig:
     hot_pixel_min_hz: float = 100.0
     latency_us: float = 0.0
     frame_compression: Literal["none", "gzip", "lzf"] = "none"
+    event_times: Literal["input", "bins"] = "input"
 
     def __post_init__(self):
         for key in ("window_us", "chunk_events", "baf_dt_us", "stcf_tau_us", "stcf_k", "stcf_radius",
@@ -76,6 +84,8 @@ class RestoreConfig:
         positive("restore.latency_us", self.latency_us)
         if self.method not in METHODS:
             raise ConfigError("restore.method", f"must be one of {list(METHODS)}, got {self.method!r}")
+        if self.event_times not in EVENT_TIMES:
+            raise ConfigError("restore.event_times", f"must be one of {list(EVENT_TIMES)}, got {self.event_times!r}")
         if self.gef_mode not in ("mask", "filter"):
             raise ConfigError("restore.gef_mode", f"must be mask or filter, got {self.gef_mode!r}")
         if self.device not in ("cpu", "cuda", "auto"):

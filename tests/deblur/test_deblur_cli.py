@@ -119,8 +119,16 @@ def test_count_output_stage1_keeps_every_raw_event(capsys, tmp_path, rng, exposu
     inside = (rec.events.t >= t[0] - PERIOD_US // 2) & (rec.events.t <= t[-1] + PERIOD_US // 2)
     assert len(back.events) == int(inside.sum())
     assert int(back.events.p.sum()) == int(rec.events.p[inside].sum())      # polarities kept
+    np.testing.assert_array_equal(back.events.array, rec.events.array[inside])   # deblur.event_times: input
     res = json.loads((out / "consistency.json").read_text())
     assert res["deblur"]["mean_abs_change"] == 0.0
+    # event_times: bins -- the same voxels, the times moved to the bins
+    rc, _, err = _run(capsys, ["deblur", str(tmp_path / "rec.h5"), str(tmp_path / "out2"), "--checkpoint", str(ck),
+                               "--data-out", str(tmp_path / "data2"), "--no-progress",
+                               "--params", str(_params(tmp_path, event_times="bins"))])
+    assert rc == 0, err
+    spread = load(tmp_path / "data2" / "restored.h5").events
+    assert len(spread) == int(inside.sum()) and not np.array_equal(spread.t, rec.events.t[inside])
 
 
 def test_defaults_to_one_output_folder_and_keeps_other_files(capsys, tmp_path, rng):

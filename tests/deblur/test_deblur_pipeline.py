@@ -114,7 +114,7 @@ def test_count_stage1_runs_once_per_window_and_gives_the_two_pass_events():
         for name, win in (("deblur", dw), ("events", ew)):
             grids, ones = window_voxels(events, win, idx, voxel, H, W, split=True)
             ref[name] = _to_events(decided_events(net.restore, img, torch.from_numpy(grids.astype(np.float32)),
-                                                  decision), ones, win, idx, voxel.mode)
+                                                  decision), ones, win, idx, voxel.mode, events)
             if name == "events":
                 g2 = grids.reshape(len(idx), 2, bins, H, W)
                 np.testing.assert_array_equal(b.raw_voxel, g2[:, 0] - g2[:, 1])

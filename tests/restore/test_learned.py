@@ -54,6 +54,25 @@ def test_identity_restorer_passes_the_stream_through(tmp_path):
     assert info["decision"]["threshold"] == 0.5 and info["decision"]["drops_unsupported"] is False
 
 
+def test_kept_events_keep_their_times_or_move_to_the_bins(tmp_path):
+    """restore.event_times: with ``input`` (the default) the identity restorer gives the
+    window's events back exactly, timestamps included; with ``bins`` the same voxels, every
+    event spread over its bin. An unknown value is a ConfigError naming the key."""
+    path = _save(tmp_path / "m.pt")
+    ev = _events(3)
+    inside = ev.slice_time(0, 30000)
+    kept = load_restorer(path, has_frames=False, params=PARAMS).restore(ev, 0, 30000, None)
+    np.testing.assert_array_equal(kept.array, inside.array)
+    r = load_restorer(path, has_frames=False, params=PARAMS, event_times="bins")
+    assert r.info["event_times"] == "bins"
+    spread = r.restore(ev, 0, 30000, None)
+    np.testing.assert_array_equal(voxel_grid(spread, 3, 0, 30000, polarity="split"),
+                                  voxel_grid(inside, 3, 0, 30000, polarity="split"))
+    assert not np.array_equal(spread.t, inside.t)
+    with pytest.raises(ConfigError, match="restore.event_times"):
+        load_restorer(path, has_frames=False, params=PARAMS, event_times="exact")
+
+
 def test_image_guided_restorer_needs_frames_and_reads_one(tmp_path):
     path = _save(tmp_path / "img.pt", image_channels=1)
     with pytest.raises(ConfigError, match=r"img\.pt.*image_channels.*needs frames"):
@@ -87,7 +106,10 @@ def test_signed_restorer_rounds(tmp_path):
     r = load_restorer(_save(tmp_path / "s.pt", output="signed", decision=None), has_frames=False, params=PARAMS)
     ev = _events(2)
     out = r.restore(ev, 0, 30000, None)            # fresh signed net = identity on signed voxels
-    np.testing.assert_array_equal(voxel_grid(out, 3, 0, 30000), voxel_grid(ev.slice_time(0, 30000), 3, 0, 30000))
+    inside = ev.slice_time(0, 30000)
+    np.testing.assert_array_equal(voxel_grid(out, 3, 0, 30000), voxel_grid(inside, 3, 0, 30000))
+    # ON and OFF events of one voxel cancel; the rest are the input's own events
+    assert np.isin(out.t * 1000 + out.y * 50 + out.x, inside.t * 1000 + inside.y * 50 + inside.x).all()
 
 
 def test_export_writes_model_and_card_and_package_fallback_reads_it(tmp_path, monkeypatch):

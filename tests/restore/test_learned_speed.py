@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from rdnet.events.select import select_events, signed_entries
 from rdnet.events.voxel import voxel_events, voxel_grid
 from rdnet.nn.decision import decision_dict, events_from_heads
 from rdnet.restore.learned import load_restorer, prepare_for_inference
@@ -49,7 +50,8 @@ def _restore_all(r, ev, frames=True):
 
 
 def _reference(r, ev, frames=True):
-    """The path before the speed-ups: contiguous inputs, sigmoid >= threshold, dense voxel_events."""
+    """The path before the speed-ups: contiguous inputs, sigmoid >= threshold, the dense grid
+    to events (voxel_events, or select_events for ``event_times: input``)."""
     parts = []
     for t0 in range(0, 60_000, WINDOW):
         w = ev.slice_time(t0, t0 + WINDOW)
@@ -58,7 +60,10 @@ def _reference(r, ev, frames=True):
         with torch.inference_mode():
             mu, logit = r.net(img, x, return_heads=True)
         grid = events_from_heads(mu, torch.sigmoid(logit), r.decision)[0]
-        res = voxel_events(grid, t0, WINDOW)
+        if r.event_times == "input":      # the kept events are the window's own (rdnet.events.select)
+            res = select_events(w, *signed_entries(grid), t0, WINDOW)
+        else:
+            res = voxel_events(grid, t0, WINDOW)
         parts.append(res.slice_time(t0, t0 + WINDOW).array)
     return np.concatenate(parts)
 
@@ -136,15 +141,16 @@ def test_signed_output_restores_the_same_events_in_both_layouts(tmp_path):
     assert len(outs[False]) > 0 and _diff(outs[True], outs[False]) <= MAX_LAYOUT_DIFF
 
 
-@pytest.mark.parametrize("image_channels", [1, 0])
-def test_sparse_and_dense_windows_restore_the_same_events(tmp_path, monkeypatch, image_channels):
+@pytest.mark.parametrize("image_channels,event_times", [(1, "input"), (0, "input"), (1, "bins")])
+def test_sparse_and_dense_windows_restore_the_same_events(tmp_path, monkeypatch, image_channels, event_times):
     """LearnedRestorer.restore feeds a window's non-zero voxels (rdnet.nn.sparse) when at most
     SPARSE_MAX_DENSITY of them are non-zero, the dense grid otherwise: forced either way, the
-    same events as the reference path."""
+    same events as the reference path (kept events with their own times, or spread over the bins)."""
     import rdnet.nn.sparse as sparse
     ev, _ = edge_noise_hot(seed=4)
     has_frames = bool(image_channels)
-    r = load_restorer(_checkpoint(tmp_path / "m.pt", image_channels), has_frames=has_frames, params=PARAMS)
+    r = load_restorer(_checkpoint(tmp_path / "m.pt", image_channels), has_frames=has_frames, params=PARAMS,
+                      event_times=event_times)
     r.channels_last = prepare_for_inference(r.net, r.device, channels_last=False)
     ref = _reference(r, ev, has_frames)
     outs = {}
