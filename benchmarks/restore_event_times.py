@@ -34,6 +34,7 @@ import numpy as np
 from rdnet.config import load_params
 from rdnet.events.core import Events
 from rdnet.events.io.hdf5 import read_events
+from rdnet.events.select import event_voxels
 from rdnet.restore.learned import restorer_from_checkpoint
 from rdnet.restore.settings import EVENT_TIMES
 from rdnet.study.data import sequences
@@ -96,7 +97,7 @@ def score_split(pairs: Path, events_dir: Path, checkpoint: Path, params: dict) -
         outs = {"raw degraded input": inputs}
         for m, rest in restorers.items():
             outs[m] = rest.restore(deg, t0, t1, frame.astype(np.float32))
-        grids = {m: np.sort(_voxels(o, rest.bins, t0, t1 - t0)) for m, o in outs.items() if m in EVENT_TIMES}
+        grids = {m: np.sort(event_voxels(o, rest.bins, t0, t1 - t0)) for m, o in outs.items() if m in EVENT_TIMES}
         if not np.array_equal(grids["input"], grids["bins"]):
             raise AssertionError(f"row {r}: the two event_times give different voxels")
         for m, o in outs.items():
@@ -115,11 +116,6 @@ def score_split(pairs: Path, events_dir: Path, checkpoint: Path, params: dict) -
                  100 * out[m]["input_events_unchanged"], out[m]["timing_error_median_us"])
     out["rows"] = int(seq.size)
     return out
-
-
-def _voxels(ev: Events, bins: int, t0: int, dur: int) -> np.ndarray:
-    from rdnet.events.select import event_voxels
-    return event_voxels(ev, bins, t0, dur)
 
 
 def markdown(res: dict) -> str:
