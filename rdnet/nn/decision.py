@@ -397,28 +397,23 @@ def sparse_decided_entries(stage1, image, counts, decision: Mapping | None) -> t
 def entry_support(index: np.ndarray, shape: tuple, inputs) -> np.ndarray:
     """(k,) bool: whether the pixel of each entry ``index`` (flat C-order positions in
     ``shape`` = (1, C, H, W)) has an input event among its 8 neighbours in the window, the
-    rule of :func:`input_support`, for a :class:`rdnet.nn.sparse.SparseVoxels` input: only
-    the entries' neighbours are looked up among the input's event pixels, no (H, W) map."""
+    rule of :func:`input_support`, for a :class:`rdnet.nn.sparse.SparseVoxels` input: the
+    input's event pixels are marked in a bool map and only the entries' 8 neighbours are read
+    from it (no neighbour sum over the whole frame)."""
     n, _, H, W = shape
     if n != 1:
         raise ValidationError("counts", f"sparse inputs are one sample, got {n}")
     _, y, x = inputs.coords()
     v = inputs.values > 0
-    occupied = np.unique(y[v].astype(np.int64) * W + x[v])
+    occ = np.zeros((H + 2, W + 2), bool)               # one pixel of empty border
+    occ[y[v] + 1, x[v] + 1] = True
     pix = np.asarray(index, np.int64) % (H * W)
-    py, px = pix // W, pix % W
+    py, px = pix // W + 1, pix % W + 1
+    flat, row = occ.reshape(-1), W + 2
+    at = py * row + px
     found = np.zeros(pix.size, bool)
-    if not occupied.size:
-        return found
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            if dy == dx == 0:
-                continue
-            ny, nx = py + dy, px + dx
-            inside = (ny >= 0) & (ny < H) & (nx >= 0) & (nx < W)
-            q = ny * W + nx
-            at = np.minimum(np.searchsorted(occupied, q), occupied.size - 1)
-            found |= inside & (occupied[at] == q)
+    for off in (-row - 1, -row, -row + 1, -1, 1, row - 1, row, row + 1):
+        found |= flat[at + off]
     return found
 
 
