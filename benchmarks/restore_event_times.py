@@ -34,7 +34,7 @@ import numpy as np
 from rdnet.config import load_params
 from rdnet.events.core import Events
 from rdnet.events.io.hdf5 import read_events
-from rdnet.events.select import event_voxels
+from rdnet.events.select import event_keys, event_voxels
 from rdnet.restore.learned import restorer_from_checkpoint
 from rdnet.restore.settings import EVENT_TIMES
 from rdnet.study.data import sequences
@@ -72,9 +72,7 @@ def timing_errors(events: Events, truth: Events) -> np.ndarray:
 
 def in_input(events: Events, inputs: Events) -> np.ndarray:
     """(n,) bool: each event is an event of ``inputs`` (time, pixel and polarity)."""
-    def key(a):
-        return ((a["t"].astype(np.int64) * inputs.height + a["y"]) * inputs.width + a["x"]) * 2 + a["p"]
-    return np.isin(key(events.array), key(inputs.array))
+    return np.isin(event_keys(events), event_keys(inputs))
 
 
 def score_split(pairs: Path, events_dir: Path, checkpoint: Path, params: dict) -> dict:

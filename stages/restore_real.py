@@ -3,7 +3,8 @@ frames, rdnet when the learned restorer is installed, ednccn when models/ednccn 
 over the real recordings of data/real and those of --shared that rdnet can read (others
 are skipped with a warning), scored without ground truth (params: restore, sensor).
 
-Per recording and method: events kept, ESR (E-MLB), event-frame consistency (with
+Per recording and method: events kept, the share of the output that is not in the
+recording (added or moved events; 0 for a filter), ESR (E-MLB), event-frame consistency (with
 frames), and region fractions -- the share of the raw events kept inside the *activity
 mask* (where the scene moves), outside it (background activity), and on the known hot
 pixels (--facts, stages/real_recordings.yaml, from ../shared/real/README.md). The activity mask is derived
@@ -46,8 +47,9 @@ def figure(path, name, raw, outs, act):
 
 
 def table(summary):
-    lines = ["| recording | method | events out | kept | ESR | consistency R^2 | activity kept | "
-             "background kept | hot pixels kept | hot pixels flagged |", "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| recording | method | events out | kept | not in the recording | ESR | consistency R^2 | "
+             "activity kept | background kept | hot pixels kept | hot pixels flagged |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
 
     def f(v, pct=False):
         if v is None or v != v:
@@ -57,7 +59,7 @@ def table(summary):
         for m, r in e["methods"].items():
             rg = r["regions"]
             lines.append(f"| {name} | {r['name']} | {r['events_out']:,} | {f(r['kept_fraction'], True)} | "
-                         f"{f(r['esr'])} | {f(r['consistency_r2'])} | {f(rg.get('activity'), True)} | "
+                         f"{f(r.get('not_recorded_fraction'), True)} | {f(r['esr'])} | {f(r['consistency_r2'])} | {f(rg.get('activity'), True)} | "
                          f"{f(rg.get('background'), True)} | {f(rg.get('hot_pixels'), True)} | "
                          f"{r.get('hot_pixels_flagged', 0)} |")
     return "\n".join(lines) + "\n"

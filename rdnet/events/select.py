@@ -102,6 +102,25 @@ def select_events(inputs: Events, index: np.ndarray, counts: np.ndarray, shape: 
     return Events(out[np.argsort(out["t"], kind="stable")], W, H, validate=False)
 
 
+def event_keys(events: Events) -> np.ndarray:
+    """(n,) int64: one integer per event, equal for two events exactly when their time,
+    pixel and polarity are (``((t H + y) W + x) 2 + p``; times up to about 2e12 us at
+    1280 x 720)."""
+    a = events.array
+    return ((a["t"].astype(np.int64) * events.height + a["y"]) * events.width + a["x"]) * 2 + a["p"]
+
+
+def shared_count(a: Events, b: Events) -> int:
+    """How many events of ``a`` are events of ``b`` (same time, pixel and polarity), counted
+    as multisets: an event twice in ``a`` and once in ``b`` counts once."""
+    if not len(a) or not len(b):
+        return 0
+    ua, ca = np.unique(event_keys(a), return_counts=True)
+    ub, cb = np.unique(event_keys(b), return_counts=True)
+    _, ia, ib = np.intersect1d(ua, ub, assume_unique=True, return_indices=True)
+    return int(np.minimum(ca[ia], cb[ib]).sum())
+
+
 def _lookup(keys: np.ndarray, values: np.ndarray, at: np.ndarray) -> np.ndarray:
     """``values`` of the increasing ``keys`` at the positions ``at`` (0 where absent)."""
     if not keys.size:

@@ -1,7 +1,8 @@
 """Restore methods on real recordings, scored without ground truth (stage ``restore_real``,
 ``benchmarks/restore_training_scenes.py``).
 
-Per recording and run: events kept, ESR (E-MLB), event-frame consistency (with frames), and
+Per recording and run: events kept, the share of the output that is not in the recording
+(events a restorer added or moved), ESR (E-MLB), event-frame consistency (with frames), and
 region fractions: the share of the raw events kept inside the *activity mask* (where the
 scene moves; :func:`rdnet.eval.noref.activity_mask` with :data:`~rdnet.eval.noref.ACTIVITY_MASK`,
 one rule for every recording), outside it (background activity), and on the known hot
@@ -141,6 +142,7 @@ def score_recording(name: str, path: Path, params: Mapping, runs: Sequence[Run],
         entry["methods"][run.key] = {
             "name": res["method"] + run.suffix, "events_out": res["events_out"],
             "kept_fraction": res["kept_fraction"],
+            "not_recorded_fraction": res["events_not_recorded"] / res["events_out"] if res["events_out"] else 0.0,
             "hot_pixels_flagged": (res["hot_pixels"] or {}).get("count", 0),
             "esr": res["scores"]["esr"]["restored"],
             "consistency_r2": (cons.get("restored") or {}).get("r2_fitted"),

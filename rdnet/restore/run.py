@@ -7,7 +7,10 @@ the recording has them) and OUT.json beside it (OUT with suffix ``.json``):
 * ``method`` (the restorer's name, e.g. ``baf`` or ``rdnet-events``) and ``model``
   (what the restorer reports about itself: filter parameters, or the checkpoint path,
   kind, training config and metrics of a learned one),
-* ``events_in``, ``events_out``, ``kept_fraction``, ``windows``, ``window_us``,
+* ``events_in``, ``events_out``, ``kept_fraction``, ``events_not_recorded`` (output events
+  that are not events of the recording, as the restorer got them: time, pixel and polarity
+  compared, :func:`rdnet.events.select.shared_count`; a filter's are 0, a learned
+  restorer's are the events it adds or moves), ``windows``, ``window_us``,
   ``seconds`` (wall time of the restore loop, after reading), ``cpu_seconds`` (its CPU
   time), ``events_per_s`` (input events per second of wall time),
   ``realtime_factor`` (recording duration / wall time),
@@ -45,6 +48,7 @@ import numpy as np
 from rdnet.config import section, to_dict
 from rdnet.errors import ConfigError, FormatError
 from rdnet.events.core import Events, concatenate
+from rdnet.events.select import shared_count
 from rdnet.restore.base import get_restorer
 from rdnet.restore.stream import windows
 
@@ -159,7 +163,7 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
             sensor = section(params, "sensor")
             consistency = ConsistencyAccumulator(frames, ("raw", "restored"), sensor.threshold_on,
                                                  sensor.threshold_off, sensor.log_eps, grey=grey)
-        n_in = n_out = n_win = n_pending = 0
+        n_in = n_out = n_win = n_pending = n_shared = 0
         pending: list[Events] = []
         t_first = t_last = None
         total = getattr(src, "n_events", None)
@@ -179,6 +183,7 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                     kept = drop_pixels(ev, hot)
                     n_hot += len(ev) - len(kept)
                 res = restorer.restore(kept, t0, t1, frame)
+                n_shared += shared_count(res, kept)
                 pending.append(res)
                 n_pending += len(res)
                 if n_pending >= cfg.chunk_events:          # few large HDF5 appends, memory bounded
@@ -234,6 +239,7 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                 "checkpoint": None if checkpoint is None else str(checkpoint),
                 "events_in": n_in, "events_out": n_out,
                 "kept_fraction": n_out / n_in if n_in else None,
+                "events_not_recorded": n_out - n_shared,
                 "latency_dropped": sum(early),
                 "windows": n_win, "window_us": window_us, "duration_us": duration,
                 "seconds": seconds, "cpu_seconds": cpu_seconds, "events_per_s": n_in / seconds if seconds > 0 else None,

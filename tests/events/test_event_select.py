@@ -6,7 +6,7 @@ import pytest
 
 from rdnet.errors import ValidationError
 from rdnet.events import Events, voxel_grid
-from rdnet.events.select import event_voxels, select_events, signed_entries
+from rdnet.events.select import event_voxels, select_events, shared_count, signed_entries
 from rdnet.events.voxel import entry_events
 
 W, H, BINS, T0, DUR = 5, 4, 4, 1000, 400          # bins of 100 us: [1000, 1100), ...
@@ -101,3 +101,11 @@ def test_bad_input_is_refused():
     with pytest.raises(ValidationError, match="2, bins"):
         select_events(ev, i, c, grid.shape[1:], T0, DUR)
     assert len(select_events(ev, i[:0], c[:0], grid.shape, T0, DUR)) == 0
+
+
+def test_shared_count_is_a_multiset_intersection():
+    a = _ev([(1010, 0, 0, 1), (1010, 0, 0, 1), (1020, 1, 0, 0), (1030, 2, 0, 1)])
+    b = _ev([(1010, 0, 0, 1), (1020, 1, 0, 1), (1030, 2, 0, 1), (1040, 3, 0, 1)])
+    assert shared_count(a, b) == 2                 # one of the two duplicates; polarity counts
+    assert shared_count(b, a) == 2 and shared_count(a, a) == 4
+    assert shared_count(a, _ev([(1, 0, 0, 0)])[:0]) == 0

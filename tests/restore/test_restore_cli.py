@@ -68,6 +68,7 @@ def test_cli_round_trip_without_frames(tmp_path, method, ref, hot_pass):
     np.testing.assert_array_equal(rec.events.array, want.array)
     assert rec.frames is None
     assert info["method"] == method and info["events_in"] == len(ev) and info["events_out"] == len(want)
+    assert info["events_not_recorded"] == 0            # a filter only keeps recorded events
     assert info["has_frames"] is False and info["scores"]["consistency"] is None
     assert info["scores"]["esr"]["raw"] > 0
     if method != "raw":
@@ -383,6 +384,7 @@ def test_an_output_that_adds_many_events_is_noted(tmp_path, monkeypatch, caplog)
     monkeypatch.setattr(run, "get_restorer", lambda *a, **k: Doubler())
     res = run.restore_recording(tmp_path / "in.h5", tmp_path / "o.h5", {}, method="raw", progress=False)
     assert res["events_out"] == 2 * res["events_in"]
+    assert res["events_not_recorded"] == res["events_in"]    # each event once recorded, once added
     assert any("2.00x the recorded events" in n for n in res["notes"])
     assert "invention" in caplog.text
     monkeypatch.undo()                                  # the identity: no note
