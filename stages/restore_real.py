@@ -24,6 +24,9 @@ METHODS = ("raw", "baf", "stcf", "gef", "rdnet", "ednccn")
 #: Extra rows on the recordings with known hot pixels (--facts): the
 #: learned restorer without the hot-pixel pass shows what the network removes by itself.
 VARIANTS = (Run("rdnet_no_hot_pass", "rdnet", restore={"hot_pixel_factor": 0}, suffix=" (no hot-pixel pass)"),)
+#: An extra row on every recording: the learned restorer that only deletes (each voxel capped at
+#: its input events, restore.add_events: false), the same network and decision.
+DELETIONS_ONLY = Run("rdnet_deletions_only", "rdnet", restore={"add_events": False}, suffix=" (deletions only)")
 
 
 def figure(path, name, raw, outs, act):
@@ -85,7 +88,7 @@ def main(args, params):
         if args.only and name not in args.only:
             continue
         log.info("restoring %s (%s)", name, path)
-        runs = [Run(m, m) for m in METHODS] + (list(VARIANTS) if name in facts.hot_pixels else [])
+        runs = [Run(m, m) for m in METHODS] + [DELETIONS_ONLY] + (list(VARIANTS) if name in facts.hot_pixels else [])
         sc = score_recording(name, path, params, runs, args.data_out / name, facts=facts)
         summary["recordings"][name] = sc.entry
         figure(args.out / f"{name}.png", name, sc.raw, sc.outs, sc.activity)

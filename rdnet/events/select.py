@@ -20,6 +20,10 @@ The voxel grid of the result is the restored grid exactly (hard binning, the pro
 events are the recording's events, with their microsecond timestamps. Only hard binning
 is supported: with ``"bilinear"`` an event weighs on two bins and has no one voxel to be
 kept in.
+
+:func:`capped_entries` caps each voxel's count at its input count (a restorer that only
+deletes); :func:`shared_count` counts the events two streams share (``rdnet restore``'s
+``events_not_recorded``).
 """
 from __future__ import annotations
 
@@ -100,6 +104,20 @@ def select_events(inputs: Events, index: np.ndarray, counts: np.ndarray, shape: 
         return Events(kept, W, H, validate=False)
     out = np.concatenate([kept, added])
     return Events(out[np.argsort(out["t"], kind="stable")], W, H, validate=False)
+
+
+def capped_entries(inputs: Events, index: np.ndarray, counts: np.ndarray, shape: tuple,
+                   t0_us: int, duration_us: int) -> tuple[np.ndarray, np.ndarray]:
+    """The per-polarity entries ``(index, counts)`` of a (2, bins, H, W) grid over
+    ``[t0_us, t0_us + duration_us]`` with every count capped at the number of ``inputs``
+    events in its voxel (entries left at 0 dropped): a restoration that may delete events
+    but not add any (``restore.add_events: false``)."""
+    shape = tuple(int(s) for s in shape)
+    index = np.asarray(index, np.int64).ravel()
+    voxels, n_in = np.unique(event_voxels(inputs, shape[1], t0_us, duration_us), return_counts=True)
+    capped = np.minimum(np.asarray(counts, np.int64).ravel(), _lookup(voxels, n_in, index))
+    keep = capped > 0
+    return index[keep], capped[keep]
 
 
 def event_keys(events: Events) -> np.ndarray:

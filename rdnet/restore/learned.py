@@ -72,7 +72,7 @@ import numpy as np
 
 from rdnet.errors import ConfigError, FormatError, ModelNotFoundError, ValidationError
 from rdnet.events.core import Events
-from rdnet.events.select import select_events, signed_entries
+from rdnet.events.select import capped_entries, select_events, signed_entries
 from rdnet.events.voxel import entry_events, voxel_entries, voxel_events, voxel_grid
 
 log = logging.getLogger(__name__)
@@ -138,6 +138,9 @@ class LearnedRestorer:
     #: ``input``: kept events are the input's own (:mod:`rdnet.events.select`); ``bins``:
     #: every event spread over its bin (``restore.event_times``)
     event_times: str = "input"
+    #: False: each voxel capped at its input events, the output a subset of the input
+    #: (``restore.add_events``)
+    add_events: bool = True
 
     @property
     def output(self) -> str:
@@ -153,7 +156,7 @@ class LearnedRestorer:
         sup = d.get("support") or {}
         return {"kind": "learned", "source": self.source, "output": self.output,
                 "image_guided": bool(self.needs_frames), "window_us": self.window_us,
-                "event_times": self.event_times,
+                "event_times": self.event_times, "add_events": self.add_events,
                 "decision": {"rule": d.get("rule"), "threshold": d.get("threshold"),
                              "drops_unsupported": support_applies(d),
                              "support_val_precision": sup.get("val_precision")}}
@@ -199,17 +202,20 @@ class LearnedRestorer:
             x = self._tensor(grid.reshape(1, -1, H, W))
         img = self._tensor(self._image(frame, H, W)) if self.net.image_channels else None
         own_times = self.event_times == "input" and self.mode == "hard"
+        entries = own_times or not self.add_events
         with torch.inference_mode():
             if split:
                 index, counts = sparse_decided_entries(self.net, img, x, self.decision)
                 shape = (2, self.bins, H, W)
             else:
                 out = self.net(img, x)[0].contiguous().cpu().numpy()
-                if own_times:
+                if entries:
                     index, counts, shape = signed_entries(out)
+        if not self.add_events:
+            index, counts = capped_entries(ev, index, counts, shape, t0_us, dur)
         if own_times:
             restored = select_events(ev, index, counts, shape, t0_us, dur)
-        elif split:
+        elif split or entries:
             restored = entry_events(index, counts, shape, t0_us, dur, mode=self.mode)
         else:
             restored = voxel_events(out, t0_us, dur, mode=self.mode)
@@ -223,9 +229,10 @@ def _fail(path: Path, field: str, msg: str) -> ConfigError:
 
 def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapping | None = None,
                              device: str = "cpu", source: str | None = None,
-                             event_times: str = "input") -> LearnedRestorer:
+                             event_times: str = "input", add_events: bool = True) -> LearnedRestorer:
     """A :class:`LearnedRestorer` from one checkpoint file, validated (module docstring).
-    ``event_times``: ``restore.event_times`` (input or bins)."""
+    ``event_times``: ``restore.event_times`` (input or bins); ``add_events``:
+    ``restore.add_events``."""
     from rdnet.restore.settings import EVENT_TIMES
     if event_times not in EVENT_TIMES:
         raise ConfigError("restore.event_times", f"must be one of {list(EVENT_TIMES)}, got {event_times!r}")
@@ -266,17 +273,24 @@ def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapp
     except ValidationError as e:
         raise _fail(path, "extra.decision", str(e)) from None
     name = "rdnet-image" if image_channels else "rdnet-events"
+    mode = str(voxel.get("mode") or "hard")
+    if not add_events and mode != "hard":
+        raise _fail(path, "extra.voxel.mode", f"restore.add_events: false caps each voxel at its input "
+                    f"events, which needs hard voxel bins; the network reads {mode!r} voxels")
     window = extra.get("window_us")
     return LearnedRestorer(name=name, needs_frames=bool(image_channels),
                            window_us=None if window is None else int(window), net=net, decision=decision,
-                           bins=bins, mode=str(voxel.get("mode") or "hard"), source=source or str(path),
-                           device=str(device), channels_last=channels_last, event_times=event_times)
+                           bins=bins, mode=mode, source=source or str(path),
+                           device=str(device), channels_last=channels_last, event_times=event_times,
+                           add_events=bool(add_events))
 
 
 def load_restorer(checkpoint: str | Path | None, *, has_frames: bool, params: Mapping,
-                  device: str = "cpu", event_times: str = "input") -> LearnedRestorer:
+                  device: str = "cpu", event_times: str = "input", add_events: bool = True) -> LearnedRestorer:
     """The learned restorer to use (module docstring for the search order). ``device``: cpu,
-    cuda or auto (cuda when available); ``event_times``: ``restore.event_times``."""
+    cuda or auto (cuda when available); ``event_times``, ``add_events``: ``restore.event_times``,
+    ``restore.add_events``."""
+    kw = {"event_times": event_times, "add_events": add_events}
     from rdnet.train.loop import resolve_device
     device = str(resolve_device(str(device), key="restore.device"))
     if checkpoint is not None:
@@ -284,8 +298,7 @@ def load_restorer(checkpoint: str | Path | None, *, has_frames: bool, params: Ma
         f = _checkpoint_file(path)
         if f is None:
             raise ConfigError("checkpoint", f"{path}: no model.pt (nor seed<k>/model.pt) found")
-        r = restorer_from_checkpoint(f, has_frames=has_frames, params=params, device=device,
-                                     event_times=event_times)
+        r = restorer_from_checkpoint(f, has_frames=has_frames, params=params, device=device, **kw)
         log.info("restorer %s from %s", r.name, f)
         return r
     # image-guided when the recording has frames; events-only otherwise (or as fallback)
@@ -293,14 +306,14 @@ def load_restorer(checkpoint: str | Path | None, *, has_frames: bool, params: Ma
         f = _checkpoint_file(STUDY_MODELS[frames]) if STUDY_MODELS[frames].exists() else None
         if f is not None:
             r = restorer_from_checkpoint(f, has_frames=has_frames, params=params, device=device,
-                                         source=f"study model {f}", event_times=event_times)
+                                         source=f"study model {f}", **kw)
             log.info("restorer %s: the study's trained model %s", r.name, f)
             return r
     for frames in ((True, False) if has_frames else (False,)):
         f = _package_file(PACKAGE_MODELS[frames])
         if f is not None:
             r = restorer_from_checkpoint(f, has_frames=has_frames, params=params, device=device,
-                                         source=f"package model {PACKAGE_MODELS[frames]}", event_times=event_times)
+                                         source=f"package model {PACKAGE_MODELS[frames]}", **kw)
             log.info("restorer %s: the packaged model %s (no study model under %s)", r.name, f,
                      STUDY_MODELS[frames].parent)
             return r

@@ -46,7 +46,9 @@ class RestoreConfig:
     events it keeps are the recording's own, with their timestamps; only the events a voxel
     gets beyond its input are spread over the bin: :mod:`rdnet.events.select`) or ``bins``
     (every output event spread evenly over its bin, as the voxel grid alone allows). Both
-    give the same voxel grid."""
+    give the same voxel grid. ``add_events``: false caps each voxel of the learned restorer
+    at its input events, so it deletes but never adds (its output is then a subset of the
+    recording); true (the default) keeps the events it adds where it judges some lost."""
 
     method: Literal["rdnet", "baf", "stcf", "gef", "raw", "ednccn"] = "rdnet"
     window_us: int = 50_000
@@ -69,6 +71,7 @@ class RestoreConfig:
     latency_us: float = 0.0
     frame_compression: Literal["none", "gzip", "lzf"] = "none"
     event_times: Literal["input", "bins"] = "input"
+    add_events: bool = True
 
     def __post_init__(self):
         for key in ("window_us", "chunk_events", "baf_dt_us", "stcf_tau_us", "stcf_k", "stcf_radius",

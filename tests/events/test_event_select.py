@@ -6,7 +6,7 @@ import pytest
 
 from rdnet.errors import ValidationError
 from rdnet.events import Events, voxel_grid
-from rdnet.events.select import event_voxels, select_events, shared_count, signed_entries
+from rdnet.events.select import capped_entries, event_voxels, select_events, shared_count, signed_entries
 from rdnet.events.voxel import entry_events
 
 W, H, BINS, T0, DUR = 5, 4, 4, 1000, 400          # bins of 100 us: [1000, 1100), ...
@@ -109,3 +109,19 @@ def test_shared_count_is_a_multiset_intersection():
     assert shared_count(a, b) == 2                 # one of the two duplicates; polarity counts
     assert shared_count(b, a) == 2 and shared_count(a, a) == 4
     assert shared_count(a, _ev([(1, 0, 0, 0)])[:0]) == 0
+
+
+def test_capped_entries_never_exceed_the_input():
+    ev = _ev([(1010, 0, 0, 1), (1020, 0, 0, 1), (1150, 1, 1, 0)])
+    grid = voxel_grid(ev, BINS, T0, DUR, polarity="split").astype(np.int64)
+    want = grid.copy()
+    want[0, 0, 0, 0] = 5           # more than its 2 inputs: capped at 2
+    want[1, 1, 1, 1] = 0           # deleted: stays deleted
+    want[0, 3, 3, 4] = 2           # no input there: dropped
+    idx, counts = capped_entries(ev, *_entries(want), want.shape, T0, DUR)
+    got = np.zeros(want.size, np.int64)
+    got[idx] = counts
+    expect = np.zeros_like(want)
+    expect[0, 0, 0, 0] = 2
+    np.testing.assert_array_equal(got.reshape(want.shape), expect)
+    assert (counts > 0).all()

@@ -18,12 +18,12 @@ PARAMS = {"voxel": {"bins": 3, "mode": "hard", "normalize": None}}
 W, H = 20, 12
 
 
-def _save(path, kind="restore", image_channels=0, output="counts", decision=0.5, bins=3):
+def _save(path, kind="restore", image_channels=0, output="counts", decision=0.5, bins=3, mode="hard"):
     args = {"kind": kind, "size": "tiny", "image_channels": image_channels, "bins": bins, "width": 4}
     if output != "signed":
         args["restore_output"] = output
     net = build_seeded(args, 0)
-    extra = {"voxel": {"bins": bins, "mode": "hard", "normalize": None}, "window_us": 30000}
+    extra = {"voxel": {"bins": bins, "mode": mode, "normalize": None}, "window_us": 30000}
     if decision is not None:
         extra["decision"] = decision if isinstance(decision, dict) else decision_dict(decision)
     save_checkpoint(path, make_checkpoint(net, kind, args, step=1, extra=extra, with_rng=False))
@@ -71,6 +71,25 @@ def test_kept_events_keep_their_times_or_move_to_the_bins(tmp_path):
     assert not np.array_equal(spread.t, inside.t)
     with pytest.raises(ConfigError, match="restore.event_times"):
         load_restorer(path, has_frames=False, params=PARAMS, event_times="exact")
+
+
+def test_add_events_false_caps_every_voxel_at_its_input(tmp_path):
+    """restore.add_events: a decision with threshold 0 keeps every voxel with at least one
+    event, so the restorer adds events everywhere; capped at the input it deletes nothing here
+    and gives the window's events back exactly."""
+    path = _save(tmp_path / "m.pt", decision=0.0)
+    ev = _events(4)
+    inside = ev.slice_time(0, 30000)
+    adds = load_restorer(path, has_frames=False, params=PARAMS).restore(ev, 0, 30000, None)
+    assert len(adds) > 10 * len(inside)
+    r = load_restorer(path, has_frames=False, params=PARAMS, add_events=False)
+    assert r.info["add_events"] is False
+    np.testing.assert_array_equal(r.restore(ev, 0, 30000, None).array, inside.array)
+    spread = load_restorer(path, has_frames=False, params=PARAMS, add_events=False, event_times="bins")
+    np.testing.assert_array_equal(voxel_grid(spread.restore(ev, 0, 30000, None), 3, 0, 30000, polarity="split"),
+                                  voxel_grid(inside, 3, 0, 30000, polarity="split"))
+    with pytest.raises(ConfigError, match=r"bil\.pt.*extra\.voxel\.mode.*add_events"):
+        load_restorer(_save(tmp_path / "bil.pt", mode="bilinear"), has_frames=False, params=PARAMS, add_events=False)
 
 
 def test_image_guided_restorer_needs_frames_and_reads_one(tmp_path):
