@@ -23,9 +23,10 @@ them. Why: the trained count networks keep about 80 % of the isolated input even
 3 % of them are real (validation rows of the study's restorers; docs/restoration.md, "Events
 with no neighbour"): the identity start (+4 on the logit of every occupied input voxel)
 and a class that is 1 % of the events leave them miscalibrated. Decisions without the key
-(checkpoints written before it) do not apply it. Inference on a sparse window
-(:func:`sparse_decided_entries`) looks up only the kept voxels' neighbours among the input
-events (:func:`entry_support`); the dense paths use the whole-frame map.
+(checkpoints written before it) do not apply it. The paths that decide voxel entries
+(:func:`decided_entries`, :func:`sparse_decided_entries`: inference) read the input's
+occupancy at the kept voxels' neighbours only (:func:`entry_support`); those that decide
+whole grids (:func:`decide_counts`, the fits) use the whole-frame map (:func:`input_support`).
 
 **Count gain** (optional, ``decision["count_gain"]``, ``train.fit_count_gain``, off in the
 study): the count head's excess over one event scaled, ``1 + g (mu - 1)``
@@ -128,11 +129,10 @@ def neighbour_support(occupied: np.ndarray) -> np.ndarray:
     return (total - occ) > 0
 
 
-def input_support(counts) -> np.ndarray:
-    """(n, 1, H, W) bool: the pixels with an input event among their 8 neighbours in the window
-    (:func:`neighbour_support`), from a stage-1 count input: an array or torch tensor
-    (n, C, H, W) (any channel > 0 is an event), or a :class:`rdnet.nn.sparse.SparseVoxels`
-    (one sample)."""
+def input_occupancy(counts) -> np.ndarray:
+    """(n, H, W) bool: the pixels with an input event anywhere in the window, from a stage-1
+    count input: an array or torch tensor (n, C, H, W) (any channel > 0 is an event), or a
+    :class:`rdnet.nn.sparse.SparseVoxels` (one sample)."""
     from rdnet.nn.sparse import SparseVoxels
     if isinstance(counts, SparseVoxels):
         _, H, W = counts.shape
@@ -140,12 +140,37 @@ def input_support(counts) -> np.ndarray:
         occ = np.zeros((1, H, W), bool)
         v = counts.values > 0
         occ[0, y[v], x[v]] = True
-    else:
-        if hasattr(counts, "detach"):
-            occ = (counts.detach() > 0).any(1).cpu().numpy()
-        else:
-            occ = (np.asarray(counts) > 0).any(1)
-    return neighbour_support(occ)[:, None]
+        return occ
+    if hasattr(counts, "detach"):
+        return (counts.detach() > 0).any(1).cpu().numpy()
+    return (np.asarray(counts) > 0).any(1)
+
+
+def input_support(counts) -> np.ndarray:
+    """(n, 1, H, W) bool: the pixels with an input event among their 8 neighbours in the window
+    (:func:`neighbour_support` of :func:`input_occupancy`), for every pixel of the frame (the
+    dense decision paths: :func:`decide_counts`, the fits)."""
+    return neighbour_support(input_occupancy(counts))[:, None]
+
+
+def entry_support(index: np.ndarray, shape: tuple, inputs) -> np.ndarray:
+    """(k,) bool: whether the pixel of each entry ``index`` (flat C-order positions in
+    ``shape`` = (n, C, H, W)) has an input event among its 8 neighbours in the window (the rule
+    of :func:`input_support`), for the few kept voxels of a decision: the input's occupancy
+    (:func:`input_occupancy`) is read at the entries' 8 neighbours only, with no neighbour sum
+    over the whole frame."""
+    n, C, H, W = shape
+    occ = np.zeros((n, H + 2, W + 2), bool)               # one pixel of empty border
+    occ[:, 1:-1, 1:-1] = input_occupancy(inputs)
+    index = np.asarray(index, np.int64)
+    pix = index % (H * W)
+    row = W + 2
+    at = (index // (C * H * W)) * (H + 2) * row + (pix // W + 1) * row + pix % W + 1
+    flat = occ.reshape(-1)
+    found = np.zeros(index.size, bool)
+    for off in (-row - 1, -row, -row + 1, -1, 1, row - 1, row, row + 1):
+        found |= flat[at + off]
+    return found
 
 
 def support_applies(decision: Mapping | None) -> bool:
@@ -360,19 +385,19 @@ def decided_entries(mu, logit, decision: Mapping | None, inputs=None) -> tuple[n
     lt = _decision_logit(decision)
     if lt == float("inf"):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    support = _support_of(decision, inputs)
     return drop_unsupported(*_kept_entries(logit >= lt, lambda *where: mu[where], decision_gain(decision)),
-                            tuple(logit.shape), support)
+                            tuple(logit.shape), decision, inputs)
 
 
-def drop_unsupported(index: np.ndarray, counts: np.ndarray, shape: tuple, support: np.ndarray | None):
+def drop_unsupported(index: np.ndarray, counts: np.ndarray, shape: tuple, decision: Mapping | None, inputs):
     """The entries ``(index, counts)`` (flat C-order positions in ``shape`` = (n, C, H, W))
-    whose pixel is supported (``support`` (n, 1, H, W) bool; None keeps every entry)."""
-    if support is None or not index.size:
+    whose pixel is supported by ``inputs`` (:func:`entry_support`) when ``decision`` applies
+    its support rule (``inputs`` required then); every entry otherwise."""
+    if not support_applies(decision) or not index.size:
         return index, counts
-    n, C, H, W = shape
-    pix = (index // (C * H * W)) * (H * W) + index % (H * W)
-    keep = np.asarray(support, bool).reshape(-1)[pix]
+    if inputs is None:
+        raise ValidationError("decision", "this decision drops unsupported voxels: pass the network's inputs")
+    keep = entry_support(index, shape, inputs)
     return index[keep], counts[keep]
 
 
@@ -385,36 +410,9 @@ def sparse_decided_entries(stage1, image, counts, decision: Mapping | None) -> t
     lt = _decision_logit(decision)
     if lt == float("inf"):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    from rdnet.nn.sparse import SparseVoxels
     keep, mu_at = stage1.sparse_heads(image, counts, lt)
-    index, kept = _kept_entries(keep, mu_at, decision_gain(decision))
-    if isinstance(counts, SparseVoxels) and support_applies(decision):
-        ok = entry_support(index, tuple(keep.shape), counts)      # the kept voxels' neighbours only
-        return index[ok], kept[ok]
-    return drop_unsupported(index, kept, tuple(keep.shape), _support_of(decision, counts))
-
-
-def entry_support(index: np.ndarray, shape: tuple, inputs) -> np.ndarray:
-    """(k,) bool: whether the pixel of each entry ``index`` (flat C-order positions in
-    ``shape`` = (1, C, H, W)) has an input event among its 8 neighbours in the window, the
-    rule of :func:`input_support`, for a :class:`rdnet.nn.sparse.SparseVoxels` input: the
-    input's event pixels are marked in a bool map and only the entries' 8 neighbours are read
-    from it (no neighbour sum over the whole frame)."""
-    n, _, H, W = shape
-    if n != 1:
-        raise ValidationError("counts", f"sparse inputs are one sample, got {n}")
-    _, y, x = inputs.coords()
-    v = inputs.values > 0
-    occ = np.zeros((H + 2, W + 2), bool)               # one pixel of empty border
-    occ[y[v] + 1, x[v] + 1] = True
-    pix = np.asarray(index, np.int64) % (H * W)
-    py, px = pix // W + 1, pix % W + 1
-    flat, row = occ.reshape(-1), W + 2
-    at = py * row + px
-    found = np.zeros(pix.size, bool)
-    for off in (-row - 1, -row, -row + 1, -1, 1, row - 1, row, row + 1):
-        found |= flat[at + off]
-    return found
+    return drop_unsupported(*_kept_entries(keep, mu_at, decision_gain(decision)), tuple(keep.shape), decision,
+                            counts)
 
 
 def _decision_logit(decision: Mapping | None) -> float:

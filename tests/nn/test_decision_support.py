@@ -44,6 +44,11 @@ def test_input_support_from_dense_and_sparse_inputs_agree():
     np.testing.assert_array_equal(entry_support(every, (1, C, H, W), sp), np.tile(dense[0, 0].ravel(), C))
     empty = SparseVoxels.of(idx[:0], x[0].numpy().ravel()[idx[:0]], tuple(x.shape[1:]))
     assert not entry_support(every, (1, C, H, W), empty).any()
+    # a dense batch of two samples (the decided_entries path): the same lookup per sample
+    batch = torch.cat([x, torch.flip(x, dims=(3,))])
+    both = np.arange(2 * C * H * W)
+    np.testing.assert_array_equal(entry_support(both, (2, C, H, W), batch),
+                                  np.concatenate([np.tile(m.ravel(), C) for m in input_support(batch)[:, 0]]))
 
 
 def test_an_unknown_support_rule_is_refused_when_the_decision_is_read():
