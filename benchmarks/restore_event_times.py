@@ -10,7 +10,10 @@ per ``event_times``. Each output event is compared with the undegraded events of
 pixel and polarity in the window (the truth): the time to the nearest one (its *timing
 error*; events with no true event of their pixel and polarity in the window are counted
 apart, as unmatched), and whether it is an event of the degraded input, unchanged. The
-degraded input itself is scored the same way, as the reference.
+degraded input itself is scored the same way, as the reference. The restorer with
+``restore.add_events: false`` (deletions only) is scored too, and every output by the
+study's voxel metrics against the truth (:func:`rdnet.eval.events.match_metrics`: F1,
+recall, precision, count ratio), which show what the added events are worth.
 
 Two generators of the test split: rdnet's simulator (``data/events/test``, ``dvc repro``)
 and the independent circuit model (one draw of
@@ -32,6 +35,7 @@ import h5py
 import numpy as np
 
 from rdnet.config import load_params
+from rdnet.eval.events import match_metrics, polarity_counts
 from rdnet.events.core import Events
 from rdnet.events.io.hdf5 import read_events
 from rdnet.events.select import event_keys, event_voxels
@@ -43,6 +47,8 @@ ROOT = Path(__file__).resolve().parents[1]
 log = logging.getLogger("restore_event_times")
 #: timing-error thresholds reported as "share within"
 WITHIN_US = (100, 1000)
+#: the row of the learned restorer with ``restore.add_events: false`` (input times)
+DELETIONS = "deletions only"
 
 
 def timing_errors(events: Events, truth: Events) -> np.ndarray:
@@ -78,8 +84,10 @@ def in_input(events: Events, inputs: Events) -> np.ndarray:
 def score_split(pairs: Path, events_dir: Path, checkpoint: Path, params: dict) -> dict:
     restorers = {m: restorer_from_checkpoint(checkpoint, has_frames=True, params=params, event_times=m)
                  for m in EVENT_TIMES}
+    restorers[DELETIONS] = restorer_from_checkpoint(checkpoint, has_frames=True, params=params, add_events=False)
+    bins = restorers["input"].bins
     files = sequences(events_dir, "test")
-    acc = {k: {"err": [], "input": []} for k in ("raw degraded input", *EVENT_TIMES)}
+    acc = {k: {"err": [], "input": [], "voxels": []} for k in ("raw degraded input", *restorers)}
     with h5py.File(pairs, "r") as f:
         seq, t0s, durs = f["sequence"][:], f["t0_us"][:], f["duration_us"][:]
         blurry = f["blurry"][:]
@@ -95,17 +103,21 @@ def score_split(pairs: Path, events_dir: Path, checkpoint: Path, params: dict) -
         outs = {"raw degraded input": inputs}
         for m, rest in restorers.items():
             outs[m] = rest.restore(deg, t0, t1, frame.astype(np.float32))
-        grids = {m: np.sort(event_voxels(o, rest.bins, t0, t1 - t0)) for m, o in outs.items() if m in EVENT_TIMES}
+        grids = {m: np.sort(event_voxels(o, bins, t0, t1 - t0)) for m, o in outs.items() if m in EVENT_TIMES}
         if not np.array_equal(grids["input"], grids["bins"]):
             raise AssertionError(f"row {r}: the two event_times give different voxels")
+        reference = polarity_counts(truth, bins, t0, t1 - t0)
         for m, o in outs.items():
             acc[m]["err"].append(timing_errors(o, truth))
             acc[m]["input"].append(in_input(o, inputs))
+            acc[m]["voxels"].append((polarity_counts(o, bins, t0, t1 - t0), reference))
     out = {}
     for m, a in acc.items():
         err, inp = np.concatenate(a["err"]), np.concatenate(a["input"])
         fin = err[np.isfinite(err)]
+        vox = match_metrics(np.stack([g for g, _ in a["voxels"]]), np.stack([u for _, u in a["voxels"]]))
         out[m] = {"events": int(err.size), "input_events_unchanged": float(inp.mean()) if inp.size else 0.0,
+                  **{k: vox[k] for k in ("precision", "recall", "f1", "count_ratio")},
                   "with_true_event": float(fin.size / max(err.size, 1)),
                   "timing_error_median_us": float(np.median(fin)) if fin.size else None,
                   "timing_error_mean_us": float(fin.mean()) if fin.size else None,
@@ -121,18 +133,23 @@ def markdown(res: dict) -> str:
              "`benchmarks/restore_event_times.py`: the study's image-guided restorer (seed 0) on every row of "
              "the test split, through `LearnedRestorer.restore` as `rdnet restore` runs it; each output event "
              "against the nearest undegraded event of its pixel and polarity in the window. Both settings give "
-             "the same voxels (checked per row).", ""]
+             "the same voxels (checked per row). Last row: the same restorer with `restore.add_events: false`. "
+             "Voxel F1, recall, precision and count ratio: the study's event metrics against the undegraded "
+             "events (10-bin voxels of each row's window).", ""]
     for split, r in res["splits"].items():
         lines += [f"## {split} ({r['rows']} rows)", "",
                   "| events | count | input events unchanged | with a true event | timing error median (us) "
-                  "| mean (us) | within 100 us | within 1 ms |", "|---|---|---|---|---|---|---|---|"]
-        for m in ("raw degraded input", *EVENT_TIMES):
+                  "| mean (us) | within 100 us | within 1 ms | voxel F1 | recall | precision | count ratio |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+        for m in ("raw degraded input", *EVENT_TIMES, DELETIONS):
             x = r[m]
-            name = m if m == "raw degraded input" else f"restored, `event_times: {m}`"
+            name = {"raw degraded input": m, DELETIONS: "restored, deletions only (`add_events: false`)"}.get(
+                m, f"restored, `event_times: {m}`")
             lines.append(f"| {name} | {x['events']} | {100 * x['input_events_unchanged']:.1f} % | "
                          f"{100 * x['with_true_event']:.1f} % | {x['timing_error_median_us']:.0f} | "
                          f"{x['timing_error_mean_us']:.0f} | {100 * x['within_100_us']:.1f} % | "
-                         f"{100 * x['within_1000_us']:.1f} % |")
+                         f"{100 * x['within_1000_us']:.1f} % | {x['f1']:.3f} | {x['recall']:.3f} | "
+                         f"{x['precision']:.3f} | {x['count_ratio']:.2f} |")
         lines.append("")
     return "\n".join(lines)
 
