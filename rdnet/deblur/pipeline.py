@@ -44,7 +44,7 @@ from rdnet.errors import FormatError, ValidationError
 from rdnet.eval.stage1 import signed_counts
 from rdnet.events.core import Events, concatenate
 from rdnet.events.recording import Frames
-from rdnet.events.select import select_events, signed_entries
+from rdnet.events.select import select_events, signed_entries, times_used
 from rdnet.events.voxel import normalization_scale, voxel_events, voxel_grid
 from rdnet.events.voxel_config import VoxelConfig
 from rdnet.nn.decision import polarity_grid, read_decision
@@ -233,7 +233,7 @@ def iter_deblur(net, images: np.ndarray, events: Events, deblur_windows: FrameWi
     ``event_times``: ``deblur.event_times`` (input or bins)."""
     if event_times not in ("input", "bins"):
         raise ValidationError("deblur.event_times", f"must be input or bins, got {event_times!r}")
-    inputs = events if event_times == "input" else None
+    inputs = events if times_used(event_times, voxel.mode) == "input" else None
     from tqdm.auto import tqdm
 
     n, _, H, W = images.shape

@@ -39,6 +39,7 @@ from rdnet.deblur.pipeline import FrameWindows, choose_windows, interval_windows
 from rdnet.errors import FormatError
 from rdnet.events.core import Events, concatenate
 from rdnet.events.recording import Frames
+from rdnet.events.select import times_used
 from rdnet.events.voxel_config import VoxelConfig
 
 if TYPE_CHECKING:
@@ -110,7 +111,10 @@ def prepare(recording: str | Path, params: dict, checkpoint: str | Path | None =
     deblur_w = choose_windows(frames, cfg.window, src)
     notes = [deblur_w.note if "fallback" in deblur_w.note else "", loaded.note,
              "grey frames given to a colour network as R = G = B"
-             if images.shape[1] == 3 and not frames.is_color else ""]
+             if images.shape[1] == 3 and not frames.is_color else "",
+             f"deblur.event_times=input keeps recorded timestamps only with hard voxel bins; voxel.mode is "
+             f"{voxel.mode!r}, so the restored events are spread over the bins"
+             if times_used(cfg.event_times, voxel.mode) != cfg.event_times else ""]
     return DeblurInputs(cfg=cfg, voxel=voxel, sensor=sensor, loaded=loaded, source=src, sensor_name=rec.sensor,
                         frames=frames, events=events, images=images, deblur_windows=deblur_w,
                         event_windows=interval_windows(frames, src), device=device,
@@ -177,7 +181,8 @@ def deblur_recording(recording: str | Path, out: str | Path, params: dict, *,
             w.set_attr("checkpoint", str(x.loaded.path))
             w.set_attr("deblur_json", json.dumps({"deblur_windows": x.deblur_windows.kind,
                                                   "event_windows": x.event_windows.kind,
-                                                  "voxel": to_dict(x.voxel)}))
+                                                  "voxel": to_dict(x.voxel),
+                                                  "event_times": times_used(cfg.event_times, x.voxel.mode)}))
         result = _summary(x, restored, np.concatenate(change), np.concatenate(window_events))
         if show.size:
             ek, dk = x.event_windows.kind, x.deblur_windows.kind
@@ -208,6 +213,7 @@ def _summary(x: DeblurInputs, restored: Events, change: np.ndarray, window_event
                    "events_per_window_max": int(window_events.max())},
         "run": {"recording": x.source, "checkpoint": str(x.loaded.path), "frames": len(x.frames),
                 "width": x.frames.width, "height": x.frames.height, "events": len(x.events),
-                "voxel": to_dict(x.voxel), "thresholds_nominal": [s.threshold_on, s.threshold_off],
+                "voxel": to_dict(x.voxel), "event_times": times_used(x.cfg.event_times, x.voxel.mode),
+                "thresholds_nominal": [s.threshold_on, s.threshold_off],
                 "log_eps": s.log_eps, "notes": list(x.notes)},
     }

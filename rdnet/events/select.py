@@ -19,7 +19,8 @@ The voxel grid of the result is the restored grid exactly (hard binning, the pro
 ``voxel.mode``), so every voxel-level score is unchanged; what changes is that the kept
 events are the recording's events, with their microsecond timestamps. Only hard binning
 is supported: with ``"bilinear"`` an event weighs on two bins and has no one voxel to be
-kept in.
+kept in, so a ``bilinear`` network's events are spread over the bins whatever the setting asks
+(:func:`times_used` says which rule applies, and what the outputs record).
 
 :func:`capped_entries` caps each voxel's count at its input count (a restorer that only
 deletes); :func:`shared_count` counts the events two streams share (``rdnet restore``'s
@@ -32,6 +33,14 @@ import numpy as np
 from rdnet.errors import ValidationError
 from rdnet.events.core import Events
 from rdnet.events.voxel import entry_events
+
+
+def times_used(event_times: str, mode: str) -> str:
+    """The timestamp rule that applies to a restorer's events: ``"input"`` (the window's own
+    events kept, :func:`select_events`) only when it is asked for and the voxels are hard
+    binned; ``"bins"`` otherwise (``restore.event_times`` / ``deblur.event_times`` against
+    ``voxel.mode``)."""
+    return "input" if event_times == "input" and mode == "hard" else "bins"
 
 
 def event_voxels(events: Events, bins: int, t0_us: int, duration_us: int) -> np.ndarray:

@@ -72,7 +72,7 @@ import numpy as np
 
 from rdnet.errors import ConfigError, FormatError, ModelNotFoundError, ValidationError
 from rdnet.events.core import Events
-from rdnet.events.select import capped_entries, select_events, signed_entries
+from rdnet.events.select import capped_entries, select_events, signed_entries, times_used
 from rdnet.events.voxel import entry_events, voxel_entries, voxel_events, voxel_grid
 
 log = logging.getLogger(__name__)
@@ -135,8 +135,8 @@ class LearnedRestorer:
     device: str = "cpu"
     #: whether the network and its inputs are channels_last (:func:`prepare_for_inference`)
     channels_last: bool = False
-    #: ``input``: kept events are the input's own (:mod:`rdnet.events.select`); ``bins``:
-    #: every event spread over its bin (``restore.event_times``)
+    #: ``input``: kept events are the input's own (:mod:`rdnet.events.select`; hard voxel
+    #: bins only, :attr:`times`); ``bins``: every event spread over its bin (``restore.event_times``)
     event_times: str = "input"
     #: False: each voxel capped at its input events, the output a subset of the input
     #: (``restore.add_events``)
@@ -145,6 +145,12 @@ class LearnedRestorer:
     @property
     def output(self) -> str:
         return self.net.output
+
+    @property
+    def times(self) -> str:
+        """The timestamp rule applied (:func:`rdnet.events.select.times_used`): ``bins`` for a
+        network on bilinear voxels even when ``event_times`` asks for ``input``."""
+        return times_used(self.event_times, self.mode)
 
     @property
     def info(self) -> dict:
@@ -156,7 +162,7 @@ class LearnedRestorer:
         sup = d.get("support") or {}
         return {"kind": "learned", "source": self.source, "output": self.output,
                 "image_guided": bool(self.needs_frames), "window_us": self.window_us,
-                "event_times": self.event_times, "add_events": self.add_events,
+                "event_times": self.times, "add_events": self.add_events,
                 "decision": {"rule": d.get("rule"), "threshold": d.get("threshold"),
                              "drops_unsupported": support_applies(d),
                              "support_val_precision": sup.get("val_precision")}}
@@ -201,7 +207,7 @@ class LearnedRestorer:
             grid = voxel_grid(ev, self.bins, t0_us, dur, mode=self.mode, polarity="signed")
             x = self._tensor(grid.reshape(1, -1, H, W))
         img = self._tensor(self._image(frame, H, W)) if self.net.image_channels else None
-        own_times = self.event_times == "input" and self.mode == "hard"
+        own_times = self.times == "input"
         entries = own_times or not self.add_events
         with torch.inference_mode():
             if split:
@@ -277,6 +283,9 @@ def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapp
     if not add_events and mode != "hard":
         raise _fail(path, "extra.voxel.mode", f"restore.add_events: false caps each voxel at its input "
                     f"events, which needs hard voxel bins; the network reads {mode!r} voxels")
+    if times_used(event_times, mode) != event_times:
+        log.info("%s: restore.event_times=input keeps the recorded timestamps of hard-binned voxels; "
+                 "this network reads %r voxels, so its events are spread over the bins", path, mode)
     window = extra.get("window_us")
     return LearnedRestorer(name=name, needs_frames=bool(image_channels),
                            window_us=None if window is None else int(window), net=net, decision=decision,

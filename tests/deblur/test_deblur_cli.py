@@ -20,19 +20,19 @@ from rdnet.train.checkpoint import make_checkpoint, save_checkpoint
 W, H, N, PERIOD_US = 32, 24, 6, 40_000
 
 
-def _checkpoint(path, kind="rdnet", bins=4, width=4, voxel=True, channels=1, counts=False):
+def _checkpoint(path, kind="rdnet", bins=4, width=4, voxel=True, channels=1, counts=False, mode="hard"):
     args = {"kind": kind, "size": "tiny", "image_channels": channels, "bins": bins, "width": width}
-    extra = {"voxel": {"bins": bins, "mode": "hard", "normalize": None}} if voxel else {}
+    extra = {"voxel": {"bins": bins, "mode": mode, "normalize": None}} if voxel else {}
     if counts:                    # count-output stage 1 with its fitted decision
         args["restore_output"] = "counts"
         extra["decision"] = {"rule": "occupancy_threshold", "threshold": 0.5}
     return save_checkpoint(path, make_checkpoint(build_model(**args), kind, args, extra=extra, with_rng=False))
 
 
-def _params(tmp_path, bins=4, **deblur):
+def _params(tmp_path, bins=4, mode="hard", **deblur):
     p = tmp_path / "params.yaml"
     d = {"threads": 1, "device": "cpu", "batch_size": 4, "montage_frames": 2, **deblur}
-    p.write_text(f"model: {{size: tiny, width: 4}}\nvoxel: {{bins: {bins}}}\n"
+    p.write_text(f"model: {{size: tiny, width: 4}}\nvoxel: {{bins: {bins}, mode: {mode}}}\n"
                  f"sensor: {{threshold_on: 0.2, threshold_off: 0.2, log_eps: 0.01}}\ndeblur: {json.dumps(d)}\n")
     return p
 
@@ -122,6 +122,7 @@ def test_count_output_stage1_keeps_every_raw_event(capsys, tmp_path, rng, exposu
     np.testing.assert_array_equal(back.events.array, rec.events.array[inside])   # deblur.event_times: input
     res = json.loads((out / "consistency.json").read_text())
     assert res["deblur"]["mean_abs_change"] == 0.0
+    assert res["run"]["event_times"] == "input" and not any("event_times" in n for n in res["run"]["notes"])
     # event_times: bins -- the same voxels, the times moved to the bins
     rc, _, err = _run(capsys, ["deblur", str(tmp_path / "rec.h5"), str(tmp_path / "out2"), "--checkpoint", str(ck),
                                "--data-out", str(tmp_path / "data2"), "--no-progress",
@@ -129,6 +130,27 @@ def test_count_output_stage1_keeps_every_raw_event(capsys, tmp_path, rng, exposu
     assert rc == 0, err
     spread = load(tmp_path / "data2" / "restored.h5").events
     assert len(spread) == int(inside.sum()) and not np.array_equal(spread.t, rec.events.t[inside])
+
+
+def test_bilinear_voxels_spread_the_events_and_say_so(capsys, tmp_path, rng):
+    """deblur.event_times: input needs hard voxel bins (an event of a bilinear grid weighs on
+    two bins): with voxel.mode bilinear the restored events are spread over the bins, and
+    consistency.json and the HDF5 record that rule, with a note, not the one asked for."""
+    rec = _recording(rng)
+    save(tmp_path / "rec.h5", rec)
+    ck = _checkpoint(tmp_path / "rdnet.pt", counts=True, mode="bilinear")
+    out, data = tmp_path / "out", tmp_path / "data"
+    rc, _, err = _run(capsys, ["deblur", str(tmp_path / "rec.h5"), str(out), "--checkpoint", str(ck),
+                               "--data-out", str(data), "--no-progress",
+                               "--params", str(_params(tmp_path, mode="bilinear"))])
+    assert rc == 0, err
+    res = json.loads((out / "consistency.json").read_text())
+    assert res["run"]["event_times"] == "bins"
+    assert any("event_times=input" in n and "bilinear" in n for n in res["run"]["notes"])
+    with h5py.File(data / "restored.h5") as f:
+        assert json.loads(f.attrs["deblur_json"])["event_times"] == "bins"
+    back = load(data / "restored.h5").events
+    assert len(back) and not np.isin(back.t, rec.events.t).all()     # bin times, not the recorded ones
 
 
 def test_defaults_to_one_output_folder_and_keeps_other_files(capsys, tmp_path, rng):

@@ -73,6 +73,21 @@ def test_kept_events_keep_their_times_or_move_to_the_bins(tmp_path):
         load_restorer(path, has_frames=False, params=PARAMS, event_times="exact")
 
 
+def test_bilinear_network_spreads_its_events_and_records_bins(tmp_path):
+    """restore.event_times: input keeps recorded timestamps only for hard voxel bins; a
+    network on bilinear voxels spreads its events over the bins, and ``info`` (OUT.json's
+    ``model``) records the rule applied, ``bins``, not the one asked for."""
+    path = _save(tmp_path / "bil.pt", mode="bilinear")
+    ev = _events(5)
+    asked_input = load_restorer(path, has_frames=False, params=PARAMS)
+    asked_bins = load_restorer(path, has_frames=False, params=PARAMS, event_times="bins")
+    assert asked_input.info["event_times"] == asked_bins.info["event_times"] == "bins"
+    a, b = asked_input.restore(ev, 0, 30000, None), asked_bins.restore(ev, 0, 30000, None)
+    assert len(a) > 0
+    np.testing.assert_array_equal(a.array, b.array)
+    assert load_restorer(_save(tmp_path / "hard.pt"), has_frames=False, params=PARAMS).info["event_times"] == "input"
+
+
 def test_add_events_false_caps_every_voxel_at_its_input(tmp_path):
     """restore.add_events: a decision with threshold 0 keeps every voxel with at least one
     event, so the restorer adds events everywhere; capped at the input it deletes nothing here
