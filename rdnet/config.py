@@ -12,6 +12,7 @@ YAML); a key that does not exist in the file is an error, as in ``dvc exp run -S
 from __future__ import annotations
 
 import copy
+import re
 import dataclasses
 import importlib
 import types
@@ -125,14 +126,12 @@ def from_dict(cls: type, data: Mapping | None, section: str, source: str | Path 
     unknown = sorted(set(data) - set(fields))
     if unknown:
         raise ConfigError(f"{section}.{unknown[0]}", f"unknown key; known keys: {', '.join(fields)}", source)
-    kwargs = {}
-    for name, value in data.items():
-        kwargs[name] = _coerce(value, hints[name], f"{section}.{name}")
     try:
+        kwargs = {name: _coerce(value, hints[name], f"{section}.{name}") for name, value in data.items()}
         return cls(**kwargs)
     except ConfigError as e:
         if source and not e.source:
-            raise ConfigError(e.key, str(e).split(": ", 1)[-1], source) from None
+            raise ConfigError(e.key, e.detail, source) from None
         raise
     except TypeError as e:
         raise ConfigError(section, str(e), source) from None
@@ -154,16 +153,30 @@ def to_dict(obj) -> dict:
 def read_yaml(path: str | Path) -> dict:
     path = Path(path)
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except OSError as e:
         raise ConfigError("params", f"cannot read: {e.strerror}", path) from None
+    except UnicodeDecodeError as e:
+        raise ConfigError("params", f"not a YAML text file (byte {e.start} is not UTF-8)", path) from None
     try:
         data = yaml.safe_load(text) or {}
     except yaml.YAMLError as e:
-        raise ConfigError("params", f"invalid YAML: {e}", path) from None
+        raise ConfigError("params", f"invalid YAML: {_yaml_problem(e)}", path) from None
     if not isinstance(data, dict):
         raise ConfigError("params", "top level must be a mapping", path)
     return data
+
+
+def _yaml_problem(e: "yaml.YAMLError") -> str:
+    """One line for a YAML error: the problem and where (PyYAML's own message spans lines)."""
+    mark = getattr(e, "problem_mark", None)
+    problem = getattr(e, "problem", None) or str(e).splitlines()[0]
+    return f"{problem} (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else problem
+
+
+#: a number in exponent form that YAML 1.1 (PyYAML) leaves a string (no dot, or no sign in
+#: the exponent: 1e3, 2.5e3)
+_EXPONENT_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
 
 
 def parse_set(item: str) -> tuple[list[str], Any]:
@@ -178,6 +191,8 @@ def parse_set(item: str) -> tuple[list[str], Any]:
         value = yaml.safe_load(raw) if raw.strip() else ""
     except yaml.YAMLError:
         value = raw
+    if isinstance(value, str) and _EXPONENT_NUMBER.fullmatch(value.strip()):
+        value = float(value)             # YAML 1.1 reads 1e3 (no dot) as a string
     return key.split("."), value
 
 
@@ -216,8 +231,14 @@ def load_params(path: str | Path | None = None, sets: Iterable[str] = (), *,
     for name in SECTIONS:
         params.setdefault(name, {})
     params = apply_sets(params, sets, path)
+    given = {".".join(parse_set(item)[0]): item for item in sets or ()}
     for name in SECTIONS:
-        from_dict(section_class(name), params.get(name), name, path)
+        try:
+            from_dict(section_class(name), params.get(name), name, path)
+        except ConfigError as e:
+            if e.key in given:         # the bad value came from --set, not from the file
+                raise ConfigError(e.key, e.detail, f"--set {given[e.key]}") from None
+            raise
     return params
 
 
@@ -244,6 +265,19 @@ def add_params_args(p) -> None:
                    help="params.yaml to read (default: ./params.yaml if present, else built-in defaults)")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a params.yaml key (repeatable), e.g. degrade.refractory_us=500")
+
+
+def seed_arg(text: str) -> int:
+    """argparse ``type`` of a ``--seed``: a whole number >= 0 (numpy's generators take no
+    negative seed)."""
+    import argparse
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
 
 
 def cli_params_path(args) -> Path | None:

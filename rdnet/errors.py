@@ -40,6 +40,7 @@ class ConfigError(RdnetError):
 
     def __init__(self, key: str, message: str, source: str | Path | None = None):
         self.key = key
+        self.detail = message
         self.source = None if source is None else str(source)
         pre = f"{self.source}: " if self.source else ""
         super().__init__(f"{pre}parameter '{key}': {message}")

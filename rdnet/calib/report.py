@@ -13,8 +13,7 @@ from rdnet.calib.calibrate import Calibration, finding
 from rdnet.calib.effects import EFFECTS
 from rdnet.calib.fit import SIGNATURE_Z
 from rdnet.calib.stats import IEI_EDGES, TAIL_BANDS
-from rdnet.errors import FormatError
-from rdnet.events.io._common import atomic_output
+from rdnet.events.io._common import atomic_directory, atomic_output
 
 
 def _atomic(path: Path, write) -> None:
@@ -256,12 +255,8 @@ def figures(cal: Calibration, out: Path) -> list[str]:
 def write_report(cal: Calibration, out_dir: str | Path, *, plots: bool = True) -> list[Path]:
     """Write report.json, report.md and the figures into ``out_dir`` (created)."""
     out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise FormatError(out, None, f"cannot create output folder ({e.strerror})") from None
-    figs = figures(cal, out) if plots else []
-    write_json(out / "report.json", cal.report)
-    md = markdown(cal, figs)
-    _atomic(out / "report.md", lambda p: Path(p).write_text(md))
+    with atomic_directory(out) as stage:      # all files or none (other files of out are kept)
+        figs = figures(cal, stage) if plots else []
+        write_json(stage / "report.json", cal.report)
+        (stage / "report.md").write_text(markdown(cal, figs))
     return [out / "report.json", out / "report.md"] + [out / f for f in figs]

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rdnet.config import add_params_args, load_cli_params
+from rdnet.config import add_params_args, load_cli_params, seed_arg
 
 
 def register(subparsers) -> None:
@@ -21,7 +21,7 @@ def register(subparsers) -> None:
     p.add_argument("recording", type=Path, help="recording with frames and events (.h5 project layout, .aedat4)")
     p.add_argument("--out", type=Path, required=True, help="output folder (report.json, report.md, figures)")
     add_params_args(p)
-    p.add_argument("--seed", type=int, default=0, help="base seed of the simulations (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="base seed of the simulations (default 0)")
     p.add_argument("--no-interpolate", action="store_true",
                    help="simulate from the frames as given (as interpolate.method=none)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
@@ -36,6 +36,7 @@ def run(args) -> int:
     from rdnet.cli.simulate import _section
     from rdnet.errors import FormatError
     from rdnet.events.io import load, open_events
+    from rdnet.events.io._common import check_output_folder
 
     params = load_cli_params(args)
     sensor = _section(params, "sensor", "rdnet.sim.settings:SensorConfig")
@@ -45,8 +46,7 @@ def run(args) -> int:
     if args.no_interpolate:
         import dataclasses
         interp = dataclasses.replace(interp, method="none")
-    if args.out.exists() and not args.out.is_dir():
-        raise FormatError(args.out, None, "--out exists and is not a folder")
+    check_output_folder(args.out, ("report.json", "report.md"))   # before the calibration, not after it
     with open_events(args.recording) as src:     # header only (RAW/DAT/HDF5): fail before decoding
         if not src.has_frames:
             raise FormatError(args.recording, "frames", "recording has no frames (calibrate simulates from them)")

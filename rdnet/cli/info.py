@@ -31,6 +31,10 @@ def add_sensor_size_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--height", type=int, default=None, help="sensor height (text files without a size header)")
 
 
+#: the largest ``--width``/``--height`` taken (event sensors are at most 1280 x 960 today)
+MAX_SENSOR_SIDE = 8192
+
+
 def sensor_size_of(args) -> tuple[int, int] | None:
     if (args.width is None) != (args.height is None):
         raise ConfigError("--width/--height", "give both or neither")
@@ -38,6 +42,9 @@ def sensor_size_of(args) -> tuple[int, int] | None:
         return None
     if args.width <= 0 or args.height <= 0:
         raise ConfigError("--width/--height", f"must be positive, got {args.width}x{args.height}")
+    if max(args.width, args.height) > MAX_SENSOR_SIDE:
+        raise ConfigError("--width/--height", f"at most {MAX_SENSOR_SIDE} pixels a side (larger than any event "
+                                              f"sensor; per-pixel maps of that size do not fit), got {args.width}x{args.height}")
     return args.width, args.height
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rdnet.config import add_params_args, load_cli_params
+from rdnet.config import add_params_args, load_cli_params, section
 from rdnet.cli.info import add_progress_arg, add_sensor_size_args, sensor_size_of
 from rdnet.restore.settings import METHODS
 
@@ -47,6 +47,7 @@ def run(args) -> int:
         from rdnet.study.config import calibrated_configs
         _, degrade = calibrated_configs(args.calibration, "--calibration")
         params = {**params, "restore": {**(params.get("restore") or {}), "latency_us": degrade.latency_us}}
+        section(params, "restore", f"{args.calibration} (its fitted latency_us, --calibration)")
     res = restore_recording(args.recording, args.out, params, method=args.method,
                             checkpoint=args.checkpoint, progress=args.progress,
                             sensor_size=sensor_size_of(args))

@@ -29,7 +29,7 @@ import json
 import logging
 from pathlib import Path
 
-from rdnet.config import add_params_args, load_cli_params, params_source
+from rdnet.config import add_params_args, load_cli_params, params_source, seed_arg
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +46,7 @@ def register(subparsers) -> None:
                       help="write degraded events (/events) and undegraded events (/events_ideal)")
     p.add_argument("--split", choices=["train", "test"], default=None,
                    help="draw this sequence's degradation from the randomize section's range for the split")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="random seed (default 0)")
     p.add_argument("--no-interpolate", action="store_true",
                    help="use the frames as given (no upsampling, as interpolate.method=none)")
     p.add_argument("--chunk", type=int, default=64, help="simulation steps per chunk (default 64)")

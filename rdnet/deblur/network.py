@@ -69,7 +69,8 @@ def load_rdnet(path: str | Path, model_cfg: ModelConfig, voxel: VoxelConfig,
     ck = ck_mod.read_checkpoint(path)
     ck_mod.check_compatible(path, ck, expected_kind="rdnet")
     args = ck["model_args"]
-    stored = {k: v for k, v in args.items() if k not in ("kind", "image_channels", "bins", "restore_output")}
+    # the checkpoint describes these itself (stage2_input: train.stage2_input, not a model key)
+    stored = {k: v for k, v in args.items() if k not in ("kind", "image_channels", "bins", "restore_output", "stage2_input")}
     wanted = ck_mod._plain({"size": model_cfg.size, **model_cfg.overrides()})
     if stored != wanted:
         raise FormatError(path, "model_args", f"holds a {_arch(stored)} network, the params' model "

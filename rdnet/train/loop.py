@@ -278,13 +278,13 @@ def _init_from(task: str, net: nn.Module, path: Path, args: Mapping) -> None:
     rdnet checkpoint; otherwise a checkpoint of the same kind (fine-tuning)."""
     ck = ckpt_mod.read_checkpoint(path)
     kinds = ("restore", "rdnet") if task == "rdnet" else (args["kind"],)
+    if ck["model_kind"] not in kinds:         # the kind first: a wrong kind is the user's first mistake
+        raise FormatError(path, "model_kind", f"holds a {ck['model_kind']!r} model; "
+                          f"task {task!r} can start from {' or '.join(map(repr, kinds))}")
     if ck["model_args"].get("restore_output", "signed") != args.get("restore_output", "signed"):
         raise FormatError(path, "model_args.restore_output",
                           f"holds a {ck['model_args'].get('restore_output', 'signed')!r} stage-1 output, this run "
                           f"trains {args.get('restore_output', 'signed')!r} (train.restore_output)")
-    if ck["model_kind"] not in kinds:
-        raise FormatError(path, "model_kind", f"holds a {ck['model_kind']!r} model; "
-                          f"task {task!r} can start from {' or '.join(map(repr, kinds))}")
     ckpt_mod.check_compatible(path, ck, bins=args["bins"], image_channels=args["image_channels"])
     if task == "rdnet" and ck["model_kind"] == "restore":
         stored = {k: v for k, v in ck["model_args"].items() if k != "kind"}

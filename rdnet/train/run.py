@@ -61,6 +61,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from rdnet.config import load_cli_params, section
+    from rdnet.events.io._common import check_output_folder
     from rdnet.train import distributed
     from rdnet.train.loop import train
 
@@ -68,6 +69,7 @@ def run(args) -> int:
     params = load_cli_params(args)
     cfg = section(params, "train")
     model_cfg = section(params, "model")
+    check_output_folder(args.out, ("model.pt", "last.pt"))    # before the training, not after it
     info = distributed.init_from_env(cfg.device)
     try:
         path = train(args.task, cfg, model_cfg, args.train_path, args.out, events=args.events,

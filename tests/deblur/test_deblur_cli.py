@@ -20,8 +20,8 @@ from rdnet.train.checkpoint import make_checkpoint, save_checkpoint
 W, H, N, PERIOD_US = 32, 24, 6, 40_000
 
 
-def _checkpoint(path, kind="rdnet", bins=4, width=4, voxel=True, channels=1, counts=False, mode="hard"):
-    args = {"kind": kind, "size": "tiny", "image_channels": channels, "bins": bins, "width": width}
+def _checkpoint(path, kind="rdnet", bins=4, width=4, voxel=True, channels=1, counts=False, mode="hard", **more):
+    args = {"kind": kind, "size": "tiny", "image_channels": channels, "bins": bins, "width": width, **more}
     extra = {"voxel": {"bins": bins, "mode": mode, "normalize": None}} if voxel else {}
     if counts:                    # count-output stage 1 with its fitted decision
         args["restore_output"] = "counts"
@@ -130,6 +130,18 @@ def test_count_output_stage1_keeps_every_raw_event(capsys, tmp_path, rng, exposu
     assert rc == 0, err
     spread = load(tmp_path / "data2" / "restored.h5").events
     assert len(spread) == int(inside.sum()) and not np.array_equal(spread.t, rec.events.t[inside])
+
+
+def test_dual_stage2_checkpoint_deblurs(capsys, tmp_path, rng):
+    """An RDNet whose stage 2 reads restored and raw voxels (train.stage2_input: dual, the
+    study's rdnet_dual) loads: the checkpoint describes that itself, the model section does
+    not name it. Its stage 2 starts as the identity too."""
+    save(tmp_path / "rec.h5", _recording(rng))
+    ck = _checkpoint(tmp_path / "rdnet.pt", stage2_input="dual")
+    rc, _, err = _run(capsys, ["deblur", str(tmp_path / "rec.h5"), str(tmp_path / "out"), "--checkpoint", str(ck),
+                               "--params", str(_params(tmp_path)), "--no-progress"])
+    assert rc == 0, err
+    assert json.loads((tmp_path / "out" / "consistency.json").read_text())["deblur"]["mean_abs_change"] == 0.0
 
 
 def test_bilinear_voxels_spread_the_events_and_say_so(capsys, tmp_path, rng):

@@ -39,3 +39,39 @@ def test_failure_leaves_nothing(tmp_path):
     with pytest.raises(FormatError, match="not a folder"):
         with atomic_directory(tmp_path / "file"):
             pass
+
+
+def test_a_clash_with_an_existing_entry_moves_nothing(tmp_path):
+    """A staged file whose name is a folder in the target (or a staged folder whose name is
+    a file there) is found before anything moves: a FormatError naming it, the target as
+    it was, the staging folder gone."""
+    out = tmp_path / "out"
+    (out / "b.txt").mkdir(parents=True)
+    with pytest.raises(FormatError, match=r"b\.txt.*is a folder"):
+        with atomic_directory(out) as stage:
+            (stage / "a.txt").write_text("1")          # sorts before the clash: must not land
+            (stage / "b.txt").write_text("2")
+    assert sorted(p.name for p in out.iterdir()) == ["b.txt"] and (out / "b.txt").is_dir()
+    (out / "b.txt").rmdir()
+    (out / "sub").write_text("a file")
+    with pytest.raises(FormatError, match=r"sub.*not a folder"):
+        with atomic_directory(out) as stage:
+            (stage / "a.txt").write_text("1")
+            (stage / "sub").mkdir()
+            (stage / "sub" / "f.png").write_text("x")
+    assert sorted(p.name for p in out.iterdir()) == ["sub"]
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_check_output_folder_fails_before_the_work(tmp_path):
+    from rdnet.events.io._common import check_output_folder
+    assert check_output_folder(tmp_path / "new" / "deeper", ("model.pt",)) == tmp_path / "new" / "deeper"
+    assert not (tmp_path / "new").exists()                       # creates nothing
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(FormatError, match=r"f: exists and is not a folder"):
+        check_output_folder(tmp_path / "f")
+    with pytest.raises(FormatError, match=r"f: is not a folder"):
+        check_output_folder(tmp_path / "f" / "below")
+    (tmp_path / "o" / "model.pt").mkdir(parents=True)
+    with pytest.raises(FormatError, match=r"model\.pt: exists and is a folder"):
+        check_output_folder(tmp_path / "o", ("last.pt", "model.pt"))

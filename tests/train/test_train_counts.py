@@ -75,6 +75,12 @@ def test_signed_masked_option_events_only_and_rdnet_on_counts(noisy, tmp_path):
     assert read_checkpoint(frozen)["extra"]["decision"] == d1            # stage 1 unchanged: kept
     with pytest.raises(FormatError, match="restore_output"):   # a signed stage 1 for a counts RDNet
         train("rdnet", COUNTS, TINY, noisy, tmp_path / "rd2", init_checkpoint=signed, progress=False)
+    from rdnet.train.loop import build_seeded, model_args
+    from rdnet.train.checkpoint import make_checkpoint, save_checkpoint
+    args = model_args("deblur", TINY, 1, 3)
+    deblur = save_checkpoint(tmp_path / "d.pt", make_checkpoint(build_seeded(args, 0), "deblur", args))
+    with pytest.raises(FormatError, match=r"model_kind.*'deblur'"):   # the wrong kind named, not its output
+        train("rdnet", COUNTS, TINY, noisy, tmp_path / "rd3", init_checkpoint=deblur, progress=False)
 
 
 def test_counts_needs_per_polarity_voxels_and_validation(tmp_path):

@@ -11,7 +11,7 @@ import contextlib
 import os
 import tempfile
 from pathlib import Path
-from typing import Iterator
+from typing import Iterable, Iterator
 
 import numpy as np
 
@@ -97,6 +97,8 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; on normal exit it replaces ``path``
     (``os.replace``), on an exception it is deleted and ``path`` is left untouched."""
     path = Path(path)
+    if path.is_dir():
+        raise FormatError(path, None, "exists and is a folder (a file is written there)")
     tmp = temp_path_for(path)
     try:
         yield tmp
@@ -130,16 +132,47 @@ def atomic_directory(path: str | Path) -> Iterator[Path]:
             os.chmod(stage, 0o777 & ~_umask())
             os.replace(stage, path)
             return
-        for src in sorted(stage.rglob("*")):
+        staged = sorted(stage.rglob("*"))
+        for src in staged:              # every clash first: a failed merge moves nothing
             dst = path / src.relative_to(stage)
-            if src.is_dir():
-                dst.mkdir(exist_ok=True)
-            else:
-                os.replace(src, dst)
+            if src.is_dir() and dst.exists() and not dst.is_dir():
+                raise FormatError(dst, None, "exists and is not a folder (a folder is written there)")
+            if not src.is_dir() and dst.is_dir():
+                raise FormatError(dst, None, "exists and is a folder (a file is written there)")
+        try:
+            for src in staged:
+                dst = path / src.relative_to(stage)
+                if src.is_dir():
+                    dst.mkdir(exist_ok=True)
+                else:
+                    os.replace(src, dst)
+        except OSError as e:
+            raise FormatError(path, None, f"cannot write ({e.strerror or e})") from None
         shutil.rmtree(stage, ignore_errors=True)
     except BaseException:
         shutil.rmtree(stage, ignore_errors=True)
         raise
+
+
+def check_output_folder(path: str | Path, files: Iterable[str] = ()) -> Path:
+    """Fail early, before the work, for an output folder that cannot take the output:
+    ``path`` exists and is not a folder, one of the ``files`` it will hold exists there as a
+    folder, or its nearest existing ancestor cannot be written to (FormatError naming it).
+    Creates nothing."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise FormatError(path, None, "exists and is not a folder (the output folder)")
+    for name in files:
+        if (path / name).is_dir():
+            raise FormatError(path / name, None, "exists and is a folder (a file is written there)")
+    probe = path
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir():
+        raise FormatError(probe, None, f"is not a folder, so {path} cannot be created")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise FormatError(probe, None, "cannot be written to (permission denied)")
+    return path
 
 
 def _umask() -> int:

@@ -19,6 +19,7 @@ is it taken as max(x) + 1, max(y) + 1, with a logged warning.
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 from pathlib import Path
 
@@ -196,11 +197,16 @@ def write_text(path: str | Path, rec: Recording, *, size_header: bool = True) ->
 
     path = Path(path)
     written: list[Path] = []
+    made_dir = None
     try:
         lines_img = None
         if rec.frames is not None and len(rec.frames):
             fr = rec.frames
             img_dir = path.parent / IMAGES_DIR
+            if (path.parent / IMAGES_TXT).is_dir():          # before any image is written
+                raise FormatError(path.parent / IMAGES_TXT, None, "exists and is a folder (a file is written there)")
+            if not img_dir.exists():
+                made_dir = img_dir
             img_dir.mkdir(exist_ok=True)
             rows = []
             with_exposure = bool(np.any(fr.exposure_us > 0))
@@ -223,13 +229,14 @@ def write_text(path: str | Path, rec: Recording, *, size_header: bool = True) ->
                 if size_header:
                     fh.write(f"{rec.width} {rec.height}\n")
                 df.to_csv(fh, sep=" ", header=False, index=False, float_format="%.6f", lineterminator="\n")
-    except OSError as e:
+    except BaseException as e:
         for f in written:
             remove_quietly(f)
-        raise as_format_error(path, e, what="cannot write") from e
-    except BaseException:
-        for f in written:
-            remove_quietly(f)
+        if made_dir is not None:
+            with contextlib.suppress(OSError):
+                made_dir.rmdir()                             # only when empty: nothing of ours left
+        if isinstance(e, OSError):
+            raise as_format_error(path, e, what="cannot write") from e
         raise
 
 

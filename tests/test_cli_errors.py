@@ -1,0 +1,124 @@
+"""User errors of the commands that the per-command tests do not reach: a bad ``--params``
+file, a bad ``--set`` value (blamed on the ``--set``, not on the file), a negative
+``--seed``, out-of-range sizes and latencies, and outputs that clash with what is on disk
+(one line, exit 2, nothing half-written, found before the work where the names are known)."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from rdnet.cli import main
+from rdnet.config import load_params, parse_set
+from rdnet.errors import ConfigError
+
+
+def _run(capsys, argv):
+    rc = main(argv)
+    out, err = capsys.readouterr()
+    assert "Traceback" not in out + err
+    return rc, out, err
+
+
+def _one_line(err: str) -> str:
+    lines = [ln for ln in err.splitlines() if ln.startswith("rdnet ")]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+@pytest.mark.parametrize("command", [["simulate", "frames", "out.h5"], ["calibrate", "rec.h5", "--out", "o"]])
+def test_negative_seed_is_refused_by_the_parser(capsys, command):
+    with pytest.raises(SystemExit) as e:
+        main(command + ["--seed", "-1"])
+    assert e.value.code == 2
+    assert "argument --seed: must be >= 0, got -1" in capsys.readouterr().err
+
+
+def test_params_file_that_is_not_text_or_not_yaml(capsys, tmp_path, make_recording):
+    from rdnet.events.io import save
+    save(tmp_path / "rec.h5", make_recording(n_events=200))
+    binary = tmp_path / "p.yaml"
+    binary.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)))
+    rc, _, err = _run(capsys, ["restore", str(tmp_path / "rec.h5"), str(tmp_path / "o.h5"), "--method", "baf",
+                               "--params", str(binary), "--no-progress"])
+    assert rc == 2 and "p.yaml: parameter 'params': not a YAML text file (byte 0 is not UTF-8)" in _one_line(err)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("a: [1, 2\nb: 3\n")
+    rc, _, err = _run(capsys, ["restore", str(tmp_path / "rec.h5"), str(tmp_path / "o.h5"), "--method", "baf",
+                               "--params", str(bad), "--no-progress"])
+    assert rc == 2 and "bad.yaml: parameter 'params': invalid YAML: " in _one_line(err) and "(line 2, column 2)" in err
+    assert not list(tmp_path.glob("o.*"))
+
+
+def test_a_bad_set_value_is_blamed_on_the_set(tmp_path):
+    p = tmp_path / "params.yaml"
+    p.write_text("restore: {window_us: 20000}\n")
+    with pytest.raises(ConfigError) as e:
+        load_params(p, ["restore.window_us=0"])
+    assert str(e.value) == "--set restore.window_us=0: parameter 'restore.window_us': must be > 0, got 0"
+    p.write_text("restore: {window_us: 0}\n")                      # the file's own value: the file
+    with pytest.raises(ConfigError, match=r"params\.yaml: parameter 'restore\.window_us'"):
+        load_params(p, ["restore.method=baf"])
+
+
+def test_set_reads_exponent_numbers_yaml_reads_as_strings():
+    assert parse_set("restore.latency_us=1e3") == (["restore", "latency_us"], 1000.0)
+    assert parse_set("a.b=-2.5E-1") == (["a", "b"], -0.25)
+    assert parse_set("a.b=2.5e3") == (["a", "b"], 2500.0)
+    assert parse_set("a.b=1e3x") == (["a", "b"], "1e3x")
+    assert parse_set("a.b=inf") == (["a", "b"], "inf")              # not a number the params take
+
+
+def test_latency_is_bounded_on_the_command_line_and_in_a_calibration(capsys, tmp_path, make_recording):
+    from rdnet.events.io import save
+    save(tmp_path / "rec.h5", make_recording(n_events=200))
+    base = ["restore", str(tmp_path / "rec.h5"), str(tmp_path / "o.h5"), "--method", "baf", "--no-progress"]
+    rc, _, err = _run(capsys, base + ["--set", "restore.latency_us=1.0e+30"])
+    assert rc == 2 and "--set restore.latency_us=1.0e+30: parameter 'restore.latency_us': must be at most" in err
+    report = tmp_path / "cal.json"
+    report.write_text(json.dumps({"fitted_config": {"sensor": {}, "degrade": {"latency_us": 1e30}}}))
+    rc, _, err = _run(capsys, base + ["--calibration", str(report)])
+    assert rc == 2 and "cal.json (its fitted latency_us, --calibration)" in _one_line(err)
+    report.write_text(json.dumps({"fitted_config": {"sensor": {}, "degrade": {"latency_us": "abc"}}}))
+    rc, _, err = _run(capsys, base + ["--calibration", str(report)])
+    assert rc == 2 and "cal.json: parameter 'fitted_config.degrade.latency_us': expected a number" in _one_line(err)
+    assert not list(tmp_path.glob("o.*"))
+
+
+def test_sensor_size_option_is_bounded(capsys, tmp_path):
+    (tmp_path / "ev.txt").write_text("0.1 1 1 1\n")
+    rc, _, err = _run(capsys, ["info", str(tmp_path / "ev.txt"), "--width", "60000", "--height", "60000"])
+    assert rc == 2 and "at most 8192 pixels a side" in _one_line(err)
+
+
+def test_restore_output_json_that_is_a_folder(capsys, tmp_path, make_recording):
+    from rdnet.events.io import save
+    save(tmp_path / "rec.h5", make_recording(n_events=200))
+    (tmp_path / "o.json").mkdir()
+    rc, _, err = _run(capsys, ["restore", str(tmp_path / "rec.h5"), str(tmp_path / "o.h5"), "--method", "baf",
+                               "--no-progress"])
+    assert rc == 2 and "o.json: exists and is a folder" in _one_line(err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.json", "rec.h5"]
+
+
+def test_calibrate_and_train_check_their_output_folder_before_the_work(capsys, tmp_path, make_recording):
+    from rdnet.events.io import save
+    save(tmp_path / "rec.h5", make_recording(n_events=200, n_frames=4))
+    (tmp_path / "rep" / "report.md").mkdir(parents=True)
+    rc, _, err = _run(capsys, ["calibrate", str(tmp_path / "rec.h5"), "--out", str(tmp_path / "rep"),
+                               "--no-plots", "--no-progress"])
+    assert rc == 2 and "report.md: exists and is a folder" in _one_line(err)
+    assert [p.name for p in (tmp_path / "rep").iterdir()] == ["report.md"]
+    rc, _, err = _run(capsys, ["train", "--task", "restore", "--train", str(tmp_path / "missing.h5"),
+                               "--out", str(tmp_path / "rec.h5"), "--no-progress"])
+    assert rc == 2 and "rec.h5: exists and is not a folder (the output folder)" in _one_line(err)
+
+
+def test_convert_to_text_with_images_txt_a_folder_leaves_nothing(capsys, tmp_path, make_recording):
+    from rdnet.events.io import save
+    save(tmp_path / "rec.h5", make_recording(n_events=200, n_frames=3))
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "images.txt").mkdir()
+    rc, _, err = _run(capsys, ["convert", str(tmp_path / "rec.h5"), str(tmp_path / "out" / "ev.txt")])
+    assert rc == 2 and "images.txt: exists and is a folder" in _one_line(err)
+    assert [p.name for p in (tmp_path / "out").iterdir()] == ["images.txt"]     # no images/ folder left
