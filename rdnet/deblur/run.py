@@ -131,14 +131,13 @@ def deblur_recording(recording: str | Path, out: str | Path, params: dict, *,
     :data:`rdnet.deblur.network.DEFAULT_CHECKPOINT`). Every check (checkpoint against the
     params, frames, events) happens before anything is written (:func:`prepare`)."""
     from rdnet.events.io import H5RecordingWriter
-    from rdnet.events.io._common import atomic_directory
+    from rdnet.events.io._common import atomic_directory, check_output_folder
     from rdnet.eval.report import sample_grid, write_text_atomic
 
     out = Path(out)
     data_out = out if data_out is None else Path(data_out)
-    for p in {out, data_out}:
-        if p.exists() and not p.is_dir():
-            raise FormatError(p, None, "output exists and is not a folder")
+    check_output_folder(out, ("consistency.json", "montage.png"))    # before the work, not after it
+    check_output_folder(data_out, ("restored.h5",))
     x = prepare(recording, params, checkpoint)
     cfg, frames, images = x.cfg, x.frames, x.images
     n, C, H, W = images.shape

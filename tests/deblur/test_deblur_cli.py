@@ -132,6 +132,18 @@ def test_count_output_stage1_keeps_every_raw_event(capsys, tmp_path, rng, exposu
     assert len(spread) == int(inside.sum()) and not np.array_equal(spread.t, rec.events.t[inside])
 
 
+def test_an_output_name_taken_by_a_folder_is_refused_before_the_work(capsys, tmp_path, rng, monkeypatch):
+    save(tmp_path / "rec.h5", _recording(rng))
+    (tmp_path / "out" / "restored.h5").mkdir(parents=True)
+    import rdnet.deblur.run as run_mod
+    monkeypatch.setattr(run_mod, "prepare", lambda *a, **k: pytest.fail("the work started"))
+    rc, _, err = _run(capsys, ["deblur", str(tmp_path / "rec.h5"), str(tmp_path / "out"), "--no-progress",
+                               "--checkpoint", str(_checkpoint(tmp_path / "rdnet.pt")),
+                               "--params", str(_params(tmp_path))])
+    assert rc == 2 and "restored.h5: exists and is a folder" in err
+    assert [p.name for p in (tmp_path / "out").iterdir()] == ["restored.h5"]
+
+
 def test_dual_stage2_checkpoint_deblurs(capsys, tmp_path, rng):
     """An RDNet whose stage 2 reads restored and raw voxels (train.stage2_input: dual, the
     study's rdnet_dual) loads: the checkpoint describes that itself, the model section does

@@ -75,3 +75,18 @@ def test_check_output_folder_fails_before_the_work(tmp_path):
     (tmp_path / "o" / "model.pt").mkdir(parents=True)
     with pytest.raises(FormatError, match=r"model\.pt: exists and is a folder"):
         check_output_folder(tmp_path / "o", ("last.pt", "model.pt"))
+
+
+def test_check_output_folder_probes_the_write(tmp_path, monkeypatch):
+    """The write check creates a temporary file where the folder will be made (os.access
+    says yes to root on a read-only mount); a refusal there names the folder."""
+    import tempfile
+
+    from rdnet.events.io._common import check_output_folder
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+    monkeypatch.setattr(tempfile, "TemporaryFile", refuse)
+    with pytest.raises(FormatError, match=r"cannot be written to \(Permission denied\)"):
+        check_output_folder(tmp_path / "new")
+    assert list(tmp_path.iterdir()) == []

@@ -158,7 +158,7 @@ def check_output_folder(path: str | Path, files: Iterable[str] = ()) -> Path:
     """Fail early, before the work, for an output folder that cannot take the output:
     ``path`` exists and is not a folder, one of the ``files`` it will hold exists there as a
     folder, or its nearest existing ancestor cannot be written to (FormatError naming it).
-    Creates nothing."""
+    Creates nothing (the write probe is an unnamed temporary file)."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise FormatError(path, None, "exists and is not a folder (the output folder)")
@@ -170,8 +170,11 @@ def check_output_folder(path: str | Path, files: Iterable[str] = ()) -> Path:
         probe = probe.parent
     if not probe.is_dir():
         raise FormatError(probe, None, f"is not a folder, so {path} cannot be created")
-    if not os.access(probe, os.W_OK | os.X_OK):
-        raise FormatError(probe, None, "cannot be written to (permission denied)")
+    try:                                       # a real probe: os.access says yes to root on a read-only mount
+        with tempfile.TemporaryFile(dir=probe):
+            pass
+    except OSError as e:
+        raise FormatError(probe, None, f"cannot be written to ({e.strerror or e})") from None
     return path
 
 
