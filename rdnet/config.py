@@ -191,6 +191,8 @@ def parse_set(item: str) -> tuple[list[str], Any]:
         value = yaml.safe_load(raw) if raw.strip() else ""
     except yaml.YAMLError:
         value = raw
+    except ValueError as e:            # e.g. an integer of more digits than Python converts
+        raise ConfigError(key, f"cannot read the value ({str(e).splitlines()[0][:120]})") from None
     if isinstance(value, str) and _EXPONENT_NUMBER.fullmatch(value.strip()):
         value = float(value)             # YAML 1.1 reads 1e3 (no dot) as a string
     return key.split("."), value
@@ -202,6 +204,9 @@ def apply_sets(params: Mapping, sets: Iterable[str], source: str | Path | None =
     out = copy.deepcopy(dict(params))
     for item in sets or ():
         parts, value = parse_set(item)
+        if len(parts) == 1 and not isinstance(value, dict):   # restore=null would reset a whole section
+            raise ConfigError(parts[0], f"a whole section takes a mapping of keys, got {value!r}; "
+                                        f"set one key with {parts[0]}.KEY=VALUE", source)
         node = out
         for i, part in enumerate(parts[:-1]):
             if not isinstance(node, dict) or part not in node:

@@ -122,3 +122,49 @@ def test_convert_to_text_with_images_txt_a_folder_leaves_nothing(capsys, tmp_pat
     rc, _, err = _run(capsys, ["convert", str(tmp_path / "rec.h5"), str(tmp_path / "out" / "ev.txt")])
     assert rc == 2 and "images.txt: exists and is a folder" in _one_line(err)
     assert [p.name for p in (tmp_path / "out").iterdir()] == ["images.txt"]     # no images/ folder left
+
+
+def test_a_whole_section_set_to_a_non_mapping_is_refused(tmp_path):
+    """``--set degrade=null`` once reset the whole section to the built-in defaults (the
+    study's degradations silently off); a section takes a mapping."""
+    p = tmp_path / "params.yaml"
+    p.write_text("degrade: {refractory_us: 100}\n")
+    for value in ("null", "~", "1"):
+        with pytest.raises(ConfigError, match=r"'degrade': a whole section takes a mapping"):
+            load_params(p, [f"degrade={value}"])
+    assert load_params(p, ["degrade={refractory_us: 200}"])["degrade"]["refractory_us"] == 200
+
+
+def test_a_set_value_python_cannot_convert_is_one_error():
+    with pytest.raises(ConfigError, match=r"'restore.window_us': cannot read the value"):
+        parse_set("restore.window_us=" + "9" * 5000)
+
+
+@pytest.mark.parametrize("key,value", [("time_bin_us", "1.0e+30"), ("warmup_us", "1.0e+30"), ("max_lag_us", "1e12"),
+                                       ("threads", "100000"), ("seeds", "1000000000")])
+def test_calibrate_keys_that_overflow_or_exhaust_the_machine_are_bounded(key, value):
+    with pytest.raises(ConfigError, match=rf"--set calibrate.{key}=.*'calibrate.{key}': must be at most"):
+        load_params(None, [f"calibrate.{key}={value}"])
+
+
+def test_convert_onto_a_symlink_loop(capsys, tmp_path, make_recording):
+    from rdnet.events.io import save
+    save(tmp_path / "rec.h5", make_recording(n_events=50))
+    (tmp_path / "loop.h5").symlink_to("loop.h5")
+    rc, _, err = _run(capsys, ["convert", str(tmp_path / "rec.h5"), str(tmp_path / "loop.h5")])
+    assert rc == 2 and "loop.h5: cannot resolve the path" in _one_line(err)
+
+
+def test_restore_calibration_that_is_not_a_regular_file(capsys, tmp_path, make_recording):
+    """A FIFO given as --calibration once blocked forever (json read it); a folder too is
+    refused before anything is read."""
+    import os
+    from rdnet.events.io import save
+    save(tmp_path / "rec.h5", make_recording(n_events=50))
+    os.mkfifo(tmp_path / "fifo.json")
+    (tmp_path / "dir.json").mkdir()
+    for name in ("fifo.json", "dir.json"):
+        rc, _, err = _run(capsys, ["restore", str(tmp_path / "rec.h5"), str(tmp_path / "o.h5"), "--method", "baf",
+                                   "--calibration", str(tmp_path / name), "--no-progress"])
+        assert rc == 2 and f"{name}: not a regular file" in _one_line(err)
+    assert not list(tmp_path.glob("o.*"))

@@ -9,6 +9,12 @@ from rdnet.config import positive
 from rdnet.errors import ConfigError
 
 
+#: upper bounds of the ``calibrate`` keys whose huge values overflowed the int64 microsecond
+#: arithmetic (times: an hour) or exhausted the machine (threads, seeds: memory and threads
+#: grow with them); far above any useful setting
+UPPER_BOUNDS = {"time_bin_us": 3.6e9, "max_lag_us": 3.6e9, "warmup_us": 3.6e9, "threads": 256, "seeds": 100}
+
+
 @dataclass(frozen=True)
 class CalibrateConfig:
     """Settings of the sim-to-real calibration (:mod:`rdnet.calib`).
@@ -110,6 +116,9 @@ class CalibrateConfig:
                     "refine_steps", "max_lag_us", "max_sim_steps", "search_max_sim_steps", "max_upsample",
                     "threads", "warmup_us"):
             positive(f"calibrate.{key}", getattr(self, key))
+        for key, most in UPPER_BOUNDS.items():     # beyond these a run overflows or exhausts the machine
+            if getattr(self, key) > most:
+                raise ConfigError(f"calibrate.{key}", f"must be at most {most:g}, got {getattr(self, key):g}")
         object.__setattr__(self, "candidates", tuple(self.candidates))
         object.__setattr__(self, "interpolation", tuple(self.interpolation))
         from rdnet.sim.interpolate import METHODS

@@ -58,7 +58,11 @@ def run(args) -> int:
     in_fmt, out_fmt = format_of(args.input), format_of(args.output)
     if out_fmt not in WRITABLE:
         raise FormatError(args.output, None, f"{out_fmt} is read-only; write .h5, .txt, .npz or .npy")
-    if args.output.resolve() == args.input.resolve():
+    try:
+        same = args.output.resolve() == args.input.resolve()
+    except (OSError, RuntimeError) as e:          # a symlink loop (RuntimeError before Python 3.13)
+        raise FormatError(args.output, None, f"cannot resolve the path ({e})") from None
+    if same:
         raise FormatError(args.output, None, "output is the input file")
     if in_fmt in _STREAMED_IN and (out_fmt == "npy" or (out_fmt == "hdf5" and in_fmt != "hdf5")):
         n_ev, n_fr, w, h = _streamed(args, out_fmt)

@@ -109,6 +109,11 @@ def prepare(recording: str | Path, params: dict, checkpoint: str | Path | None =
                           f"got {len(frames)}")
     images = network_images(frames, loaded.image_channels, src)
     deblur_w = choose_windows(frames, cfg.window, src)
+    event_w = interval_windows(frames, src)
+    if len(events) == 0 or not np.any(event_w.event_counts(events)):
+        span = f"events at {int(events.t[0])}..{int(events.t[-1])} us" if len(events) else "no events"
+        raise FormatError(src, "events", f"no event falls in any frame's window (frames at {int(frames.t_us[0])}.."
+                          f"{int(frames.t_us[-1])} us, {span}): the frames and events do not overlap in time")
     notes = [deblur_w.note if "fallback" in deblur_w.note else "", loaded.note,
              "grey frames given to a colour network as R = G = B"
              if images.shape[1] == 3 and not frames.is_color else "",
@@ -117,7 +122,7 @@ def prepare(recording: str | Path, params: dict, checkpoint: str | Path | None =
              if times_used(cfg.event_times, voxel.mode) != cfg.event_times else ""]
     return DeblurInputs(cfg=cfg, voxel=voxel, sensor=sensor, loaded=loaded, source=src, sensor_name=rec.sensor,
                         frames=frames, events=events, images=images, deblur_windows=deblur_w,
-                        event_windows=interval_windows(frames, src), device=device,
+                        event_windows=event_w, device=device,
                         notes=tuple(x for x in notes if x))
 
 

@@ -144,6 +144,19 @@ def test_an_output_name_taken_by_a_folder_is_refused_before_the_work(capsys, tmp
     assert [p.name for p in (tmp_path / "out").iterdir()] == ["restored.h5"]
 
 
+def test_frames_that_miss_every_event_are_refused(capsys, tmp_path, rng):
+    """Frames 10 s after the last event: no frame interval holds an event, so there is
+    nothing to restore or score (this once wrote 'deblurred' frames and n/a scores)."""
+    rec = _recording(rng)
+    late = Frames(rec.frames.images, rec.frames.t_us + 10_000_000, rec.frames.exposure_us)
+    save(tmp_path / "rec.h5", Recording(W, H, events=rec.events, frames=late, sensor="TEST"))
+    rc, _, err = _run(capsys, ["deblur", str(tmp_path / "rec.h5"), str(tmp_path / "out"), "--no-progress",
+                               "--checkpoint", str(_checkpoint(tmp_path / "rdnet.pt")),
+                               "--params", str(_params(tmp_path))])
+    assert rc == 2 and "field 'events': no event falls in any frame's window" in err
+    assert not (tmp_path / "out").exists()
+
+
 def test_dual_stage2_checkpoint_deblurs(capsys, tmp_path, rng):
     """An RDNet whose stage 2 reads restored and raw voxels (train.stage2_input: dual, the
     study's rdnet_dual) loads: the checkpoint describes that itself, the model section does
