@@ -168,3 +168,11 @@ def test_restore_calibration_that_is_not_a_regular_file(capsys, tmp_path, make_r
                                    "--calibration", str(tmp_path / name), "--no-progress"])
         assert rc == 2 and f"{name}: not a regular file" in _one_line(err)
     assert not list(tmp_path.glob("o.*"))
+
+
+def test_an_output_folder_that_is_a_file_is_named_as_such(capsys, tmp_path, make_recording):
+    from rdnet.events.io import save
+    save(tmp_path / "rec.h5", make_recording(n_events=50))
+    (tmp_path / "f").write_text("a file")
+    rc, _, err = _run(capsys, ["convert", str(tmp_path / "rec.h5"), str(tmp_path / "f" / "o.npz")])
+    assert rc == 2 and "output folder" in err and "is not a folder" in _one_line(err)
