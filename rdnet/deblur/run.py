@@ -83,6 +83,12 @@ class DeblurInputs:
     device: "torch.device"
     notes: tuple = ()
 
+    @property
+    def event_times(self) -> str:
+        """The timestamp rule of the restored events (:func:`rdnet.events.select.times_used`:
+        ``deblur.event_times``, but ``bins`` for bilinear voxels)."""
+        return times_used(self.cfg.event_times, self.voxel.mode)
+
 
 def prepare(recording: str | Path, params: dict, checkpoint: str | Path | None = None) -> DeblurInputs:
     """Load and check the checkpoint (against the ``model``/``voxel`` params), the
@@ -161,7 +167,7 @@ def deblur_recording(recording: str | Path, out: str | Path, params: dict, *,
         with H5RecordingWriter(stage_data / "restored.h5", W, H, x.sensor_name) as w:
             for b in iter_deblur(x.loaded.net, images, x.events, x.deblur_windows, x.event_windows, x.voxel,
                                  batch_size=cfg.batch_size, device=x.device, progress=progress,
-                                 decision=x.loaded.decision, event_times=cfg.event_times):
+                                 decision=x.loaded.decision, event_times=x.event_times):
                 restored_parts.append(b.events)
                 if b.deblur_events is not None:
                     deblur_parts.append(b.deblur_events)
@@ -186,7 +192,7 @@ def deblur_recording(recording: str | Path, out: str | Path, params: dict, *,
             w.set_attr("deblur_json", json.dumps({"deblur_windows": x.deblur_windows.kind,
                                                   "event_windows": x.event_windows.kind,
                                                   "voxel": to_dict(x.voxel),
-                                                  "event_times": times_used(cfg.event_times, x.voxel.mode)}))
+                                                  "event_times": x.event_times}))
         result = _summary(x, restored, np.concatenate(change), np.concatenate(window_events))
         if show.size:
             ek, dk = x.event_windows.kind, x.deblur_windows.kind
@@ -217,7 +223,7 @@ def _summary(x: DeblurInputs, restored: Events, change: np.ndarray, window_event
                    "events_per_window_max": int(window_events.max())},
         "run": {"recording": x.source, "checkpoint": str(x.loaded.path), "frames": len(x.frames),
                 "width": x.frames.width, "height": x.frames.height, "events": len(x.events),
-                "voxel": to_dict(x.voxel), "event_times": times_used(x.cfg.event_times, x.voxel.mode),
+                "voxel": to_dict(x.voxel), "event_times": x.event_times,
                 "thresholds_nominal": [s.threshold_on, s.threshold_off],
                 "log_eps": s.log_eps, "notes": list(x.notes)},
     }

@@ -99,7 +99,7 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
     (``os.replace``), on an exception it is deleted and ``path`` is left untouched."""
     path = Path(path)
     if path.is_dir():
-        raise FormatError(path, None, "exists and is a folder (a file is written there)")
+        raise _taken_by_folder(path)
     tmp = temp_path_for(path)
     try:
         yield tmp
@@ -139,7 +139,7 @@ def atomic_directory(path: str | Path) -> Iterator[Path]:
             if src.is_dir() and dst.exists() and not dst.is_dir():
                 raise FormatError(dst, None, "exists and is not a folder (a folder is written there)")
             if not src.is_dir() and dst.is_dir():
-                raise FormatError(dst, None, "exists and is a folder (a file is written there)")
+                raise _taken_by_folder(dst)
         try:
             for src in staged:
                 dst = path / src.relative_to(stage)
@@ -155,6 +155,11 @@ def atomic_directory(path: str | Path) -> Iterator[Path]:
         raise
 
 
+def _taken_by_folder(path: Path) -> FormatError:
+    """The error for an output file whose name a folder already takes."""
+    return FormatError(path, None, "exists and is a folder (a file is written there)")
+
+
 def check_output_folder(path: str | Path, files: Iterable[str] = ()) -> Path:
     """Fail early, before the work, for an output folder that cannot take the output:
     ``path`` exists and is not a folder, one of the ``files`` it will hold exists there as a
@@ -165,7 +170,7 @@ def check_output_folder(path: str | Path, files: Iterable[str] = ()) -> Path:
         raise FormatError(path, None, "exists and is not a folder (the output folder)")
     for name in files:
         if (path / name).is_dir():
-            raise FormatError(path / name, None, "exists and is a folder (a file is written there)")
+            raise _taken_by_folder(path / name)
     probe = path
     while not probe.exists():
         probe = probe.parent

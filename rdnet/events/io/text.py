@@ -203,8 +203,6 @@ def write_text(path: str | Path, rec: Recording, *, size_header: bool = True) ->
         if rec.frames is not None and len(rec.frames):
             fr = rec.frames
             img_dir = path.parent / IMAGES_DIR
-            if (path.parent / IMAGES_TXT).is_dir():          # before any image is written
-                raise FormatError(path.parent / IMAGES_TXT, None, "exists and is a folder (a file is written there)")
             if not img_dir.exists():
                 made_dir = img_dir
             img_dir.mkdir(exist_ok=True)
