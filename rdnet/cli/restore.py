@@ -44,10 +44,8 @@ def run(args) -> int:
 
     params = load_cli_params(args)
     if args.calibration is not None:
-        from rdnet.events.io._common import require_file
         from rdnet.study.config import calibrated_configs
-        if args.calibration.exists():
-            require_file(args.calibration)         # a FIFO or a folder: refused, not read (a FIFO blocks)
+        # refuses a FIFO or a folder before reading (a FIFO would block), names a missing file
         _, degrade = calibrated_configs(args.calibration, "--calibration")
         params = {**params, "restore": {**(params.get("restore") or {}), "latency_us": degrade.latency_us}}
         section(params, "restore", f"{args.calibration} (its fitted latency_us, --calibration)")

@@ -107,15 +107,21 @@ def seed_checkpoint(checkpoint: str | Path, seed: int) -> Path:
 def calibrated_configs(report_path: str | Path, option: str = "study.degrade_from"):
     """``(SensorConfig, DegradeConfig)`` of the ``fitted_config`` of an ``rdnet calibrate``
     report (FormatError / ConfigError naming the file and field when it is not one;
-    ``option``: where the path came from, for the missing-file message)."""
+    ``option``: where the path came from, for the missing-file message). A path that
+    exists but is not a regular file (a FIFO, which would block the read forever, or a
+    folder) is refused before anything is read."""
     import json
     from rdnet.errors import FormatError
     from rdnet.sim.settings import DegradeConfig, SensorConfig
     p = Path(report_path)
+    if p.exists() and not p.is_file():
+        raise FormatError(p, None, "not a regular file")
     try:
         rep = json.loads(p.read_text())
     except FileNotFoundError:
         raise FormatError(p, None, f"no such file ({option})") from None
+    except PermissionError:
+        raise FormatError(p, None, "permission denied") from None
     except (OSError, ValueError) as e:
         raise FormatError(p, None, f"not a JSON calibration report: {e}") from None
     fitted = rep.get("fitted_config") if isinstance(rep, dict) else None

@@ -31,6 +31,10 @@ Per-polarity counts: when the file holds ``voxel_{kind}_on``/``_off``
 (the input and target of the count-output RestoreNet). Files without them still load
 (``PairsInfo.has_counts`` is False).
 
+Bad values: :func:`check_finite` refuses a file whose float data hold NaN or inf (the
+training loop runs it before the first step); a dataset that is an HDF5 group is refused
+by :func:`read_pairs_info` (:func:`pairs_dataset`).
+
 ``rows`` restricts a dataset to some rows of the file (e.g. the training rows left after
 holding out validation sequences, :func:`split_rows`); crops and flips stay a function
 of the file row.
@@ -55,6 +59,8 @@ EVENT_KINDS = ("undegraded", "degraded")
 #: The datasets a sample reads are held in memory when they fit in this many bytes (module
 #: docstring); a speed-memory trade only, the samples do not depend on it.
 PRELOAD_MAX_BYTES = 1 << 30
+#: :func:`check_finite` reads a dataset in slices of whole rows of about this many bytes.
+FINITE_CHUNK_BYTES = 64 << 20
 
 
 def sample_datasets(info: PairsInfo) -> tuple[str, ...]:
@@ -73,6 +79,52 @@ def read_rows_whole(f, names, rows: np.ndarray | None = None) -> dict | None:
         return None
     sel = slice(None) if rows is None else rows
     return {k: f[k][sel] for k in names}
+
+
+def pairs_dataset(f, path: str | Path, name: str):
+    """The dataset ``name`` of the open pairs file ``f`` (FormatError naming the file and
+    the dataset when it is missing or is an HDF5 group or named type instead)."""
+    import h5py
+    if name not in f:
+        raise FormatError(path, name, "missing dataset")
+    obj = f[name]
+    if not isinstance(obj, h5py.Dataset):
+        what = "an HDF5 group" if isinstance(obj, h5py.Group) else f"an HDF5 {type(obj).__name__}"
+        raise FormatError(path, name, f"is {what}, expected a dataset")
+    return obj
+
+
+def check_finite(path: str | Path, info: PairsInfo | None = None,
+                 chunk_bytes: int | None = None) -> None:
+    """FormatError naming the file and the dataset when a float dataset that a sample
+    reads (:func:`sample_datasets` and ``level``) holds NaN or inf, with the index of
+    the first one; the training loop would otherwise stop with a non-finite loss.
+
+    The whole file is read once, in slices of whole rows of about ``chunk_bytes``
+    (default :data:`FINITE_CHUNK_BYTES`), so memory stays bounded whatever the file size.
+    It runs before training rather than per sample in :class:`PairsDataset` because a
+    crop only sees part of a row (a bad value outside the crops drawn early would be
+    found late or never) and because an error raised from the data loader mid-run comes
+    after the output folder, ``dvclive/`` and ``last.pt`` have been written. Integer
+    datasets cannot hold NaN or inf and are skipped."""
+    import h5py
+    path = Path(path)
+    info = read_pairs_info(path) if info is None else info
+    chunk_bytes = FINITE_CHUNK_BYTES if chunk_bytes is None else int(chunk_bytes)
+    with h5py.File(path, "r") as f:
+        for name in sample_datasets(info) + ("level",):
+            d = f[name]
+            if not np.issubdtype(d.dtype, np.inexact):
+                continue
+            row_bytes = max(1, d.dtype.itemsize * int(np.prod(d.shape[1:])))
+            step = max(1, chunk_bytes // row_bytes)
+            for lo in range(0, d.shape[0], step):
+                bad = ~np.isfinite(d[lo:lo + step])
+                if bad.any():
+                    idx = np.unravel_index(int(np.argmax(bad)), bad.shape)
+                    idx = (lo + int(idx[0]),) + tuple(int(i) for i in idx[1:])
+                    where = idx[0] if len(idx) == 1 else idx
+                    raise FormatError(path, name, f"holds NaN or inf values (first at index {where})")
 
 
 @dataclass(frozen=True)
@@ -101,9 +153,7 @@ def read_pairs_info(path: str | Path) -> PairsInfo:
         raise FormatError(path, None, f"not a readable HDF5 file ({e})") from None
     with f:
         for name, ndim in REQUIRED.items():
-            if name not in f:
-                raise FormatError(path, name, "missing dataset")
-            if f[name].ndim != ndim:
+            if pairs_dataset(f, path, name).ndim != ndim:
                 raise FormatError(path, name, f"expected {ndim} dimensions, got shape {f[name].shape}")
         n, c, h, w = f["blurry"].shape
         if f["sharp"].shape != (n, c, h, w):
@@ -123,7 +173,7 @@ def read_pairs_info(path: str | Path) -> PairsInfo:
             raise FormatError(path, sorted(set(POLARITY_KEYS) - set(present))[0],
                               "missing (the file has only some per-polarity voxels)")
         for k in present:
-            if f[k].shape != (n, b, h, w):
+            if pairs_dataset(f, path, k).shape != (n, b, h, w):
                 raise FormatError(path, k, f"shape {f[k].shape}, expected {(n, b, h, w)}")
     return PairsInfo(n=int(n), channels=int(c), bins=int(b), height=int(h), width=int(w),
                      has_counts=bool(present))
@@ -140,7 +190,7 @@ def split_rows(path: str | Path, val_sequences: int) -> tuple[np.ndarray, np.nda
     with h5py.File(path, "r") as f:
         if "sequence" not in f:
             raise FormatError(Path(path), "sequence", "missing dataset (needed to hold out validation sequences)")
-        seq = np.asarray(f["sequence"][...])
+        seq = np.asarray(pairs_dataset(f, path, "sequence")[...])
     ids = np.unique(seq)
     if ids.size <= val_sequences:
         raise ConfigError("train.val_sequences", f"{val_sequences} validation sequences leave no "

@@ -54,7 +54,8 @@ from rdnet.errors import ConfigError, FormatError
 from rdnet.nn.models import EventEncoder
 from rdnet.train import checkpoint as ckpt_mod
 from rdnet.train.config import ModelConfig, TrainConfig
-from rdnet.train.data import PairsDataset, StepSampler, read_pairs_voxel, split_rows
+from rdnet.train.data import (PairsDataset, StepSampler, check_finite, pairs_dataset, read_pairs_voxel,
+                              split_rows)
 from rdnet.train.distributed import DistInfo, dist_info, all_reduce_mean, barrier, replica_digests
 
 log = logging.getLogger(__name__)
@@ -191,7 +192,7 @@ def _median_window_us(path: str | Path, rows) -> int | None:
     with h5py.File(path, "r") as f:
         if "duration_us" not in f:
             return None
-        d = np.asarray(f["duration_us"][...])[np.asarray(rows, np.int64)]
+        d = np.asarray(pairs_dataset(f, path, "duration_us")[...])[np.asarray(rows, np.int64)]
     return int(np.median(d)) if d.size else None
 
 
@@ -401,6 +402,7 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
     if counts and not data.info.has_counts:
         raise FormatError(Path(train_path), "voxel_degraded_on", "train.restore_output counts needs the "
                           "per-polarity voxels (pairs file written before they existed: rerun the blur step)")
+    check_finite(train_path, data.info)     # NaN/inf: refused before any step or output, not a non-finite loss
     args = model_args(task, model_cfg, data.info.channels, data.info.bins, cfg.model_output, cfg.stage2_input)
     config = to_dict(cfg)
     extra = {"events": events, "train_path": str(Path(train_path)),

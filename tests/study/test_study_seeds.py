@@ -1,5 +1,6 @@
 """Seeds of the study: config validation, checkpoint layout, seed means and paired gaps."""
 import json
+import os
 
 import numpy as np
 import pytest
@@ -104,6 +105,33 @@ def test_calibrated_configs_read_a_calibration_report(tmp_path):
     rep.write_text(json.dumps({"fitted_config": {"sensor": {"threshold_on": -1}, "degrade": {}}}))
     with pytest.raises(ConfigError, match="threshold_on"):
         calibrated_configs(rep)
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no named pipes on this platform")
+def test_calibrated_configs_refuses_a_report_that_is_not_a_regular_file(tmp_path):
+    """A FIFO once blocked the read forever (checked only by `rdnet restore --calibration`,
+    not for study.degrade_from); a folder is refused the same way."""
+    import threading
+    from rdnet.errors import FormatError
+    from rdnet.study.config import calibrated_configs
+    fifo, folder = tmp_path / "fifo.json", tmp_path / "dir.json"
+    os.mkfifo(fifo)
+    folder.mkdir()
+
+    def unblock():                   # should the read block again, end it (EOF) instead of hanging
+        try:
+            os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+        except OSError:              # no reader waiting: nothing blocked
+            pass
+    timer = threading.Timer(10.0, unblock)
+    timer.start()
+    try:
+        for path in (fifo, folder):
+            with pytest.raises(FormatError) as e:
+                calibrated_configs(path)
+            assert str(e.value) == f"{path}: not a regular file"
+    finally:
+        timer.cancel()
 
 
 def test_forward_flops_count_convolutions():

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from rdnet.errors import ConfigError, FormatError
-from rdnet.train.data import PairsDataset, StepSampler, draw_augment, step_indices
+from rdnet.train.data import PairsDataset, StepSampler, check_finite, draw_augment, split_rows, step_indices
 from rdnet.train.synthetic import write_synthetic_pairs
 
 
@@ -127,6 +127,44 @@ def test_layout_errors_name_file_and_field(tmp_path, pairs):
         PairsDataset(pairs, crop=21)
     with pytest.raises(ConfigError, match="events"):
         PairsDataset(pairs, events="ideal")
+
+
+def _copy_pairs(src_path, dst_path, replace=None):
+    """A copy of the pairs file ``src_path`` (datasets, groups, attributes) with the
+    datasets named in ``replace`` turned into empty HDF5 groups."""
+    with h5py.File(src_path, "r") as src, h5py.File(dst_path, "w") as dst:
+        for k, v in src.attrs.items():
+            dst.attrs[k] = v
+        for k in src:
+            if k in (replace or ()):
+                dst.create_group(k)
+            else:
+                src.copy(k, dst)
+    return dst_path
+
+
+@pytest.mark.parametrize("name", ["blurry", "level", "voxel_degraded_on", "sequence"])
+def test_a_dataset_that_is_a_group_names_file_and_dataset(tmp_path, pairs, name):
+    bad = _copy_pairs(pairs, tmp_path / "group.h5", replace=[name])
+    with pytest.raises(FormatError) as e:
+        split_rows(bad, 1)              # the layout check, then the held-out sequences
+    assert str(e.value) == f"{bad}: field '{name}': is an HDF5 group, expected a dataset"
+
+
+@pytest.mark.parametrize("chunk_bytes", [None, 1])   # one read per dataset / one row per read
+def test_check_finite_names_the_dataset_and_first_bad_index(tmp_path, pairs, chunk_bytes):
+    check_finite(pairs, chunk_bytes=chunk_bytes)     # a clean file passes
+    for name, idx, value in [("voxel_degraded", (4, 1, 2, 5), np.nan), ("sharp", (2, 2, 19, 27), -np.inf),
+                             ("level", (3,), np.inf)]:
+        bad = _copy_pairs(pairs, tmp_path / f"{name}.h5")
+        with h5py.File(bad, "r+") as f:
+            f[name][idx] = value
+            if name != "level":                  # a later bad value is not the one reported
+                f[name][5, 0, 0, 0] = np.nan
+        where = idx[0] if len(idx) == 1 else idx
+        with pytest.raises(FormatError) as e:
+            check_finite(bad, chunk_bytes=chunk_bytes)
+        assert str(e.value) == f"{bad}: field '{name}': holds NaN or inf values (first at index {where})"
 
 
 def test_step_indices_visit_every_row_once_per_epoch():
