@@ -258,6 +258,19 @@ def positive(key: str, value: float, *, allow_zero: bool = True) -> None:
         raise ConfigError(key, f"must be {'>= 0' if allow_zero else '> 0'}, got {value}")
 
 
+#: one hour in microseconds: the bound of the settings that are durations in int64
+#: microseconds (far beyond any sensor's; larger values overflowed the timestamp arithmetic)
+ONE_HOUR_US = 3.6e9
+
+
+def at_most(key: str, value: float, most: float) -> None:
+    """Range check helper for ``__post_init__``: ``value`` <= ``most`` (durations:
+    :data:`ONE_HOUR_US`, named as an hour in the message)."""
+    if value > most:
+        unit = " us (an hour)" if most == ONE_HOUR_US else ""
+        raise ConfigError(key, f"must be at most {most:g}{unit}, got {value:g}")
+
+
 # --- command-line access (``--params`` / ``--set``), shared by the CLI and entry points --
 
 #: What :func:`params_source` reports when no params.yaml is read.

@@ -206,3 +206,21 @@ def test_train_on_a_pairs_file_with_bad_values_or_a_group_is_refused_before_the_
                 else "holds NaN or inf values (first at index (2, 0, 10, 7))")
     assert rc == 2 and f"{bad}: field 'blurry': {expected}" in _one_line(err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.h5", "good.h5", "params.yaml"]
+
+
+def test_one_hour_bound_is_shared_and_named():
+    """The microsecond durations of restore and calibrate share one bound (an hour), and the
+    message names the key, the bound and the unit; values at the bound pass."""
+    from rdnet.calib.settings import CalibrateConfig
+    from rdnet.config import ONE_HOUR_US, at_most
+    from rdnet.restore.settings import RestoreConfig
+    RestoreConfig(latency_us=ONE_HOUR_US)
+    CalibrateConfig(max_lag_us=ONE_HOUR_US)
+    for make, key in ((lambda: RestoreConfig(latency_us=ONE_HOUR_US * 2), "restore.latency_us"),
+                      (lambda: CalibrateConfig(warmup_us=ONE_HOUR_US * 2), "calibrate.warmup_us")):
+        with pytest.raises(ConfigError) as e:
+            make()
+        assert str(e.value) == f"parameter '{key}': must be at most 3.6e+09 us (an hour), got 7.2e+09"
+    with pytest.raises(ConfigError, match=r"'calibrate.threads': must be at most 256, got 257$"):
+        CalibrateConfig(threads=257)
+    at_most("k", 5, 5)

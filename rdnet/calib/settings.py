@@ -5,14 +5,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Tuple
 
-from rdnet.config import positive
+from rdnet.config import ONE_HOUR_US, at_most, positive
 from rdnet.errors import ConfigError
 
 
 #: upper bounds of the ``calibrate`` keys whose huge values overflowed the int64 microsecond
 #: arithmetic (times: an hour) or exhausted the machine (threads, seeds: memory and threads
 #: grow with them); far above any useful setting
-UPPER_BOUNDS = {"time_bin_us": 3.6e9, "max_lag_us": 3.6e9, "warmup_us": 3.6e9, "threads": 256, "seeds": 100}
+UPPER_BOUNDS = {"time_bin_us": ONE_HOUR_US, "max_lag_us": ONE_HOUR_US, "warmup_us": ONE_HOUR_US, "threads": 256,
+                "seeds": 100}
 
 
 @dataclass(frozen=True)
@@ -117,8 +118,7 @@ class CalibrateConfig:
                     "threads", "warmup_us"):
             positive(f"calibrate.{key}", getattr(self, key))
         for key, most in UPPER_BOUNDS.items():     # beyond these a run overflows or exhausts the machine
-            if getattr(self, key) > most:
-                raise ConfigError(f"calibrate.{key}", f"must be at most {most:g}, got {getattr(self, key):g}")
+            at_most(f"calibrate.{key}", getattr(self, key), most)
         object.__setattr__(self, "candidates", tuple(self.candidates))
         object.__setattr__(self, "interpolation", tuple(self.interpolation))
         from rdnet.sim.interpolate import METHODS

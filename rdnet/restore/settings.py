@@ -6,15 +6,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from rdnet.config import positive
+from rdnet.config import ONE_HOUR_US, at_most, positive
 from rdnet.errors import ConfigError
 
 METHODS = ("rdnet", "baf", "stcf", "gef", "raw", "ednccn")
 #: how a learned restorer's voxel counts become events (``RestoreConfig.event_times``)
 EVENT_TIMES = ("input", "bins")
-#: the longest ``restore.latency_us`` taken (an hour: far beyond any sensor's, and within the
-#: int64 microsecond timestamps it is subtracted from)
-MAX_LATENCY_US = 3.6e9
 
 
 @dataclass(frozen=True)
@@ -88,9 +85,7 @@ class RestoreConfig:
                                                          f"its neighbours' median), got {self.hot_pixel_factor}")
         positive("restore.hot_pixel_min_hz", self.hot_pixel_min_hz)
         positive("restore.latency_us", self.latency_us)
-        if self.latency_us > MAX_LATENCY_US:
-            raise ConfigError("restore.latency_us", f"must be at most {MAX_LATENCY_US:.0f} us (an hour), "
-                                                    f"got {self.latency_us:g}")
+        at_most("restore.latency_us", self.latency_us, ONE_HOUR_US)   # within the int64 us timestamps
         if self.method not in METHODS:
             raise ConfigError("restore.method", f"must be one of {list(METHODS)}, got {self.method!r}")
         if self.event_times not in EVENT_TIMES:
