@@ -169,12 +169,24 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
             tick(f"basic refit ({tr[0]})")
         chosen = min(trials, key=lambda tr: tr[8])
         method, ctx, obj, fine, search = chosen[:5]
+        basic = (chosen[5], chosen[6])
+        candidates = {tr[0]: {"fit_after_basic_refit": tr[7].fit_mean,
+                              "fit_reachable": tr[8], "best_screened_effect": tr[9],
+                              "heldout_after_basic_refit": tr[7].held_mean,
+                              "basic_refit": {k: float(v) for k, v in tr[5].items()},
+                              "simulated_frames": int(len(tr[1].sim_t))} for tr in trials}
+        # the losing interpolations' simulations count too; their frames, engines and caches
+        # are dropped before the forward selection (a few hundred MB on DAVIS346)
+        lost = [o for tr in trials if tr is not chosen for o in {id(o): o for o in tr[2:5]}.values()]
+        lost_sims = sum(o.n_sims for o in lost)
+        lost_kernel = sum(e.n_kernel for e in {id(o.engine): o.engine for o in lost}.values())
+        del trials, chosen, lost, tr
         log.info("calibrating %s: %d sampled pixels (stride %d; search: %d, stride %d), %d real events, "
                  "%d simulated frames (%s interpolation)", source, ctx.n_pixels, ctx.stride, search.ctx.n_pixels,
                  search.ctx.stride, len(ctx.real), len(ctx.sim_t), method)
         # the forward selection runs alone: it gets the threads the candidates had together
         with numba_threads(selection_threads(cfg, len(interps))):
-            fit = calibrate_fit(search, obj, fine, progress=tick, basic=(chosen[5], chosen[6]))
+            fit = calibrate_fit(search, obj, fine, progress=tick, basic=basic)
     finally:
         bar.close()
     frame_interp = {
@@ -185,17 +197,8 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
                  "share its best screened effect removes), so an interpolation cannot win by mimicking a "
                  "missing effect; effects are tested on the kept one only"),
         "level": "search pixel sample, search seeds",
-        "candidates": {tr[0]: {"fit_after_basic_refit": tr[7].fit_mean,
-                               "fit_reachable": tr[8], "best_screened_effect": tr[9],
-                               "heldout_after_basic_refit": tr[7].held_mean,
-                               "basic_refit": {k: float(v) for k, v in tr[5].items()},
-                               "simulated_frames": int(len(tr[1].sim_t))} for tr in trials},
+        "candidates": candidates,
     }
-    # the losing interpolations' simulations count too; their frames and caches are dropped
-    lost = [o for tr in trials if tr is not chosen for o in {id(o): o for o in tr[2:5]}.values()]
-    lost_sims = sum(o.n_sims for o in lost)
-    lost_kernel = sum(e.n_kernel for e in {id(o.engine): o.engine for o in lost}.values())
-    del trials, chosen, lost
     base_stats = obj.stats_all({}, seeds[0])
     basic_stats = obj.stats_all(fit.basic_values, seeds[0])
     fitted_stats = obj.stats_all(fit.final_values, seeds[0])
