@@ -179,10 +179,10 @@ def cases_for(generator: str = "both", quick: bool = False) -> dict[str, tuple[P
 
 #: how long the sensor of a "real" recording has been running on a still scene before the
 #: scene starts to move (both generators; the calibration assumes ``calibrate.warmup_us``)
-TRUTH_WARMUP_US = 0   # 5_000_000 in the stationary-truth runs of docs/calibration.md (--truth-warmup-us)
+TRUTH_WARMUP_US = 5_000_000   # --truth-warmup-us; 0 = a sensor that starts with the recording
 #: how long the scene has been moving before the recording starts (the true sensor sees
 #: it; the calibration gets the frames from t = 0 only)
-TRUTH_PREROLL_US = 0   # 500_000 in the stationary-truth runs of docs/calibration.md (--truth-preroll-us)
+TRUTH_PREROLL_US = 500_000   # --truth-preroll-us (docs/calibration.md "Stationary truths")
 
 
 def _recorded(events):

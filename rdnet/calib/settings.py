@@ -73,9 +73,9 @@ class CalibrateConfig:
     long on the first frame held still and drops those events, then draws the reference of
     the pixels that move in the recording between the thresholds again
     (:func:`rdnet.calib.engine.start`): a real recording starts from a sensor that has been
-    running, whose static pixels sit where leak drift and noise resets left them (0, the
-    default = start at the reference above; docs/calibration.md "The warm-up" has what 3 s did on the
-    proof).
+    running, whose static pixels sit where leak drift and noise resets left them (default
+    3 s; 0 = start at the reference above; docs/calibration.md "The warm-up" and
+    "Stationary truths").
     """
 
     segments: int = 6
@@ -102,7 +102,7 @@ class CalibrateConfig:
     candidates: Tuple[str, ...] = ()
     interpolation: Tuple[str, ...] = ("flow", "linear", "selected")
     random_reference: bool = True
-    warmup_us: int = 0
+    warmup_us: int = 3_000_000
 
     def __post_init__(self):
         if self.segments < 2:
