@@ -831,9 +831,11 @@ class Sensor:
         logf, decay, lin = self._chunk_terms(fr, t, log, log_frames)
         for src, dst in zip(self._state, self._backup):
             np.copyto(dst, src)
-        if self._cap == 0:
-            # first guess: up to 1/2 event per pixel and step; grown on overflow
-            self._ensure_cap(max(256, self.width * t.size // 2))
+        # first guess: up to 1/2 event per pixel and step of this chunk (only ever grown: a
+        # long chunk after a short one, such as the recording after the calibration's warm-up
+        # on a held frame, starts from its own guess instead of overflowing and running the
+        # kernel twice); grown further on overflow
+        self._ensure_cap(max(256, self.width * t.size // 2))
         seg = np.zeros((t.size, self.height), np.int64)
         while True:
             out_t, out_x, out_p = self._bufs
