@@ -86,6 +86,26 @@ def events_factory():
     return random_events
 
 
+def copy_pairs(src_path: Path, dst_path: Path, replace=()) -> Path:
+    """A copy of the HDF5 pairs file ``src_path`` (datasets and attributes) with the
+    datasets named in ``replace`` turned into empty HDF5 groups (bad-input tests)."""
+    import h5py
+    with h5py.File(src_path, "r") as src, h5py.File(dst_path, "w") as dst:
+        for k, v in src.attrs.items():
+            dst.attrs[k] = v
+        for k in src:
+            if k in replace:
+                dst.create_group(k)
+            else:
+                src.copy(k, dst)
+    return dst_path
+
+
+@pytest.fixture
+def pairs_copier():
+    return copy_pairs
+
+
 @pytest.fixture
 def davis346_path() -> Path:
     """The committed DAVIS346 AEDAT 4 file (part of the repository)."""

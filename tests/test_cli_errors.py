@@ -179,7 +179,8 @@ def test_an_output_folder_that_is_a_file_is_named_as_such(capsys, tmp_path, make
 
 
 @pytest.mark.parametrize("defect", ["nan", "inf", "group"])
-def test_train_on_a_pairs_file_with_bad_values_or_a_group_is_refused_before_the_work(capsys, tmp_path, defect):
+def test_train_on_a_pairs_file_with_bad_values_or_a_group_is_refused_before_the_work(capsys, tmp_path, defect,
+                                                                                     pairs_copier):
     """NaN or inf in the data once stopped training with a traceback ("non-finite loss"), and a
     dataset that is an HDF5 group with one from the layout check: now one line naming the file
     and the dataset, before any step and before the output folder is made."""
@@ -187,17 +188,10 @@ def test_train_on_a_pairs_file_with_bad_values_or_a_group_is_refused_before_the_
     import numpy as np
     from rdnet.train.synthetic import write_synthetic_pairs
     good = write_synthetic_pairs(tmp_path / "good.h5", n=4, bins=3, height=20, width=20, seed=1)
-    bad = tmp_path / "bad.h5"
-    with h5py.File(good, "r") as src, h5py.File(bad, "w") as dst:
-        for k, v in src.attrs.items():
-            dst.attrs[k] = v
-        for k in src:
-            if defect == "group" and k == "blurry":
-                dst.create_group(k)
-            else:
-                src.copy(k, dst)
-        if defect != "group":
-            dst["blurry"][2, 0, 10, 7] = np.nan if defect == "nan" else np.inf
+    bad = pairs_copier(good, tmp_path / "bad.h5", replace=("blurry",) if defect == "group" else ())
+    if defect != "group":
+        with h5py.File(bad, "r+") as f:
+            f["blurry"][2, 0, 10, 7] = np.nan if defect == "nan" else np.inf
     params = tmp_path / "params.yaml"
     params.write_text("train: {iterations: 2, batch_size: 2, crop: 16, device: cpu}\n")
     rc, _, err = _run(capsys, ["train", "--task", "deblur", "--train", str(bad), "--out", str(tmp_path / "out"),

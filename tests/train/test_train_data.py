@@ -129,34 +129,20 @@ def test_layout_errors_name_file_and_field(tmp_path, pairs):
         PairsDataset(pairs, events="ideal")
 
 
-def _copy_pairs(src_path, dst_path, replace=None):
-    """A copy of the pairs file ``src_path`` (datasets, groups, attributes) with the
-    datasets named in ``replace`` turned into empty HDF5 groups."""
-    with h5py.File(src_path, "r") as src, h5py.File(dst_path, "w") as dst:
-        for k, v in src.attrs.items():
-            dst.attrs[k] = v
-        for k in src:
-            if k in (replace or ()):
-                dst.create_group(k)
-            else:
-                src.copy(k, dst)
-    return dst_path
-
-
 @pytest.mark.parametrize("name", ["blurry", "level", "voxel_degraded_on", "sequence"])
-def test_a_dataset_that_is_a_group_names_file_and_dataset(tmp_path, pairs, name):
-    bad = _copy_pairs(pairs, tmp_path / "group.h5", replace=[name])
+def test_a_dataset_that_is_a_group_names_file_and_dataset(tmp_path, pairs, name, pairs_copier):
+    bad = pairs_copier(pairs, tmp_path / "group.h5", replace=[name])
     with pytest.raises(FormatError) as e:
         split_rows(bad, 1)              # the layout check, then the held-out sequences
     assert str(e.value) == f"{bad}: field '{name}': is an HDF5 group, expected a dataset"
 
 
 @pytest.mark.parametrize("chunk_bytes", [None, 1])   # one read per dataset / one row per read
-def test_check_finite_names_the_dataset_and_first_bad_index(tmp_path, pairs, chunk_bytes):
+def test_check_finite_names_the_dataset_and_first_bad_index(tmp_path, pairs, chunk_bytes, pairs_copier):
     check_finite(pairs, chunk_bytes=chunk_bytes)     # a clean file passes
     for name, idx, value in [("voxel_degraded", (4, 1, 2, 5), np.nan), ("sharp", (2, 2, 19, 27), -np.inf),
                              ("level", (3,), np.inf)]:
-        bad = _copy_pairs(pairs, tmp_path / f"{name}.h5")
+        bad = pairs_copier(pairs, tmp_path / f"{name}.h5")
         with h5py.File(bad, "r+") as f:
             f[name][idx] = value
             if name != "level":                  # a later bad value is not the one reported
