@@ -16,13 +16,14 @@ own random draws, for the random-start and the stationary truths:
 * a test signal (a slow rate, period 100 bins, shifted by 2 and -3 bins) through a mask of 3
   runs of 83 bins.
 
-:func:`xcorr_lag_pearson` and :func:`xcorr_lag_pearson_smoothed` are the variants that were
-tried in the full proof and not kept: ``--proof-with NAME OUT`` runs the ``calibration_proof``
+:func:`xcorr_lag_pearson`, :func:`xcorr_lag_pearson_smoothed` and :func:`quantile_lag` are the
+variants that were tried in the full proof and not kept: ``--proof-with NAME OUT`` runs the ``calibration_proof``
 stage with ``rdnet.calib.stats.xcorr_lag_us`` replaced by one of them (14-30 min;
 ``benchmarks/results/calibration_proof_lag_pearson.json``: ``pearson`` on the random-start
 truths of the code before 2026-11-27, ``--truth-warmup-us 0 --truth-preroll-us 0`` with
 ``calibrate.warmup_us: 0`` today; ``calibration_proof_lag_pearson_smoothed.json``:
-``pearson_smoothed`` on the stationary truths, the defaults).
+``pearson_smoothed`` on the stationary truths, the defaults; ``calibration_proof_lag_quantile.json``:
+``quantile`` (:func:`quantile_lag`), the same).
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/calib_lag_segments.py    # ~1 min
     PYTHONPATH=$PWD .venv/bin/python benchmarks/calib_lag_segments.py --proof-with pearson_smoothed /tmp/proof
@@ -102,9 +103,34 @@ def xcorr_lag_pearson_smoothed(sim: np.ndarray, real: np.ndarray, mask: np.ndarr
     return xcorr_lag_pearson(smooth(sim), smooth(real), m, bin_us, max_lag_us)
 
 
+#: cumulative shares at which :func:`quantile_lag` compares the times
+QUANTILES = np.linspace(0.1, 0.9, 9)
+
+
+def quantile_lag(sim: np.ndarray, real: np.ndarray, mask: np.ndarray, bin_us: float,
+                 max_lag_us: float) -> float:
+    """Lag (us) as the median, over the mask's runs and the shares :data:`QUANTILES`, of
+    the time at which the recording's cumulative rate reaches that share of its run's total
+    minus the time the simulation's does. The cumulative sum integrates the frame-period
+    ripple away, and each run is normalised by its own total, so a count ratio that differs
+    between runs does not enter; ``max_lag_us`` is not used."""
+    m = np.asarray(mask, bool)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], m.astype(np.int8), [0]])))
+    diffs = []
+    for a, b in zip(edges[::2], edges[1::2]):
+        cs, cr = np.cumsum(sim[a:b]), np.cumsum(real[a:b])
+        if cs[-1] <= 0 or cr[-1] <= 0:
+            continue
+        x = np.arange(b - a + 1, dtype=float)               # bin edges of the run
+        ts = np.interp(QUANTILES, np.concatenate([[0.0], cs / cs[-1]]), x)
+        tr = np.interp(QUANTILES, np.concatenate([[0.0], cr / cr[-1]]), x)
+        diffs.append(tr - ts)
+    return float(np.median(np.concatenate(diffs)) * bin_us) if diffs else 0.0
+
+
 ESTIMATORS = {"sum (committed)": st.xcorr_lag_us, "pearson (tried)": xcorr_lag_pearson,
-              "pearson smoothed (tried)": xcorr_lag_pearson_smoothed}
-VARIANTS = {"pearson": xcorr_lag_pearson, "pearson_smoothed": xcorr_lag_pearson_smoothed}
+              "pearson smoothed (tried)": xcorr_lag_pearson_smoothed, "quantile times (tried)": quantile_lag}
+VARIANTS = {"pearson": xcorr_lag_pearson, "pearson_smoothed": xcorr_lag_pearson_smoothed, "quantile": quantile_lag}
 
 
 def run_proof_with(name: str, out: Path, extra: list[str]) -> None:
@@ -169,23 +195,26 @@ def markdown(out: dict) -> str:
              "Lags in us (positive: the recording is later), one per seed; `sum` is "
              "`rdnet.calib.stats.xcorr_lag_us`; the variants tried: `pearson` (each lag normalised by its own "
              f"pairs inside the mask) and `pearson smoothed` (both rates first smoothed over {SMOOTH_BINS} bins, "
-             "one frame period). docs/calibration.md, \"Why latency is vetoed\".", ""]
+             "one frame period), and `quantile times` (the median shift of the times at which each run's "
+             "cumulative rate reaches 10, 20, ..., 90 % of its total). docs/calibration.md, \"Why latency is vetoed\".", ""]
     for truth, res in out["cases"].items():
         lines += [f"## {truth} truth", ""]
         for label, rows in res["configs"].items():
             lines += [f"Simulation: {label}.", "",
                       "| bins | lag, sum (committed) | lag, pearson (tried) | lag, pearson smoothed (tried) | "
-                      "recorded / simulated events |", "|---|---|---|---|---|"]
+                      "lag, quantile times (tried) | recorded / simulated events |", "|---|---|---|---|---|---|"]
             for mname, row in rows.items():
                 lines.append(f"| {mname} | {row['sum (committed)']} | {row['pearson (tried)']} | "
-                             f"{row['pearson smoothed (tried)']} | {row['recorded / simulated events']:.3f} |")
+                             f"{row['pearson smoothed (tried)']} | {row['quantile times (tried)']} | "
+                             f"{row['recorded / simulated events']:.3f} |")
             lines.append("")
     lines += ["## Test signal", "", "A slow rate (period 100 bins) shifted by `shift` bins, seen through 3 runs of 83 "
               "bins (as the held-out mask); lag read in bins:", "",
-              "| shift | sum (committed) | pearson (tried) | pearson smoothed (tried) |", "|---|---|---|---|"]
+              "| shift | sum (committed) | pearson (tried) | pearson smoothed (tried) | quantile times (tried) |",
+              "|---|---|---|---|---|"]
     for shift, row in out["test_signal"].items():
         lines.append(f"| {shift} | {row['sum (committed)']:.2f} | {row['pearson (tried)']:.2f} | "
-                     f"{row['pearson smoothed (tried)']:.2f} |")
+                     f"{row['pearson smoothed (tried)']:.2f} | {row['quantile times (tried)']:.2f} |")
     return "\n".join(lines) + "\n"
 
 
