@@ -23,7 +23,10 @@ stage with ``rdnet.calib.stats.xcorr_lag_us`` replaced by one of them (14-30 min
 truths of the code before 2026-11-27, ``--truth-warmup-us 0 --truth-preroll-us 0`` with
 ``calibrate.warmup_us: 0`` today; ``calibration_proof_lag_pearson_smoothed.json``:
 ``pearson_smoothed`` on the stationary truths, the defaults; ``calibration_proof_lag_quantile.json``:
-``quantile`` (:func:`quantile_lag`), the same).
+``quantile`` (:func:`quantile_lag`), the same). ``--proof-with pearson_smoothed_signature OUT``
+keeps the committed ``lag`` term and uses the smoothed Pearson lag only as latency's own
+statistic (:func:`signature_only`; ``calibration_proof_lag_signature.json``): the one variant
+that did better, not yet in the library.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/calib_lag_segments.py    # ~1 min
     PYTHONPATH=$PWD .venv/bin/python benchmarks/calib_lag_segments.py --proof-with pearson_smoothed /tmp/proof
@@ -133,12 +136,39 @@ ESTIMATORS = {"sum (committed)": st.xcorr_lag_us, "pearson (tried)": xcorr_lag_p
 VARIANTS = {"pearson": xcorr_lag_pearson, "pearson_smoothed": xcorr_lag_pearson_smoothed, "quantile": quantile_lag}
 
 
+def signature_only(variant) -> None:
+    """Leave the discrepancy's ``lag`` term as it is and give latency another own statistic,
+    ``lag_sig``: the lag of ``variant`` (same scale and cap as ``lag``), computed beside the
+    other distances with weight 0 (so no fit moves) and used by the signature gate only. The
+    report's figures are skipped (they have no panel for ``lag_sig``)."""
+    import dataclasses
+
+    import rdnet.calib.report as rep
+    from rdnet.calib.effects import EFFECTS
+    plain = st.distances
+
+    def distances(sim, real, ctx):
+        d = plain(sim, real, ctx)
+        lag = variant(sim["rate_time"], real["rate_time"], real["time_mask"], float(ctx.cfg.time_bin_us),
+                      float(ctx.cfg.max_lag_us))
+        d["lag_sig"] = float(min(abs(lag) / st.LAG_SCALE_US, 5.0))
+        return d
+    st.distances = distances
+    EFFECTS["latency"] = dataclasses.replace(EFFECTS["latency"], statistic="lag_sig")
+    rep.figures = lambda cal, out: []
+
+
 def run_proof_with(name: str, out: Path, extra: list[str]) -> None:
     """The ``calibration_proof`` stage with ``xcorr_lag_us`` replaced by ``VARIANTS[name]``
-    (every caller looks it up in ``rdnet.calib.stats`` at call time); outputs under ``out``."""
+    (every caller looks it up in ``rdnet.calib.stats`` at call time), or, for a name
+    ``NAME_signature``, with ``VARIANTS[NAME]`` as latency's own statistic only
+    (:func:`signature_only`); outputs under ``out``."""
     import runpy
     import sys
-    st.xcorr_lag_us = VARIANTS[name]
+    if name.endswith("_signature"):
+        signature_only(VARIANTS[name[: -len("_signature")]])
+    else:
+        st.xcorr_lag_us = VARIANTS[name]
     sys.path.insert(0, str(ROOT / "stages"))
     sys.argv = ["calibration_proof.py", "--out", str(out / "proof"), "--metrics", str(out / "metrics.json"), *extra]
     runpy.run_path(str(ROOT / "stages" / "calibration_proof.py"), run_name="__main__")
