@@ -206,13 +206,11 @@ def case_lags(truth: str, cfg, seeds: list[int]) -> dict:
         rows = {}
         for mname, segs in masks.items():
             r = st.aggregate(real, ctx, segs)
-            row = {}
-            for ename, f in ESTIMATORS.items():
-                lags = [f(st.aggregate(obj.summary(values, s), ctx, segs)["rate_time"], r["rate_time"], r["time_mask"],
-                          float(cfg.time_bin_us), float(cfg.max_lag_us)) for s in seeds]
-                row[ename] = [round(v) for v in lags]
-            sims = [float(st.aggregate(obj.summary(values, s), ctx, segs)["count"]) for s in seeds]
-            row["recorded / simulated events"] = float(r["count"]) / max(float(np.mean(sims)), 1.0)
+            sims = [st.aggregate(obj.summary(values, s), ctx, segs) for s in seeds]   # once per seed
+            row = {ename: [round(f(a["rate_time"], r["rate_time"], r["time_mask"], float(cfg.time_bin_us),
+                                   float(cfg.max_lag_us))) for a in sims]
+                   for ename, f in ESTIMATORS.items()}
+            row["recorded / simulated events"] = float(r["count"]) / max(float(np.mean([a["count"] for a in sims])), 1.0)
             rows[mname] = row
         res["configs"][label] = rows
     return res
