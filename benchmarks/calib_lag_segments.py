@@ -78,13 +78,7 @@ def xcorr_lag_pearson(sim: np.ndarray, real: np.ndarray, mask: np.ndarray, bin_u
         den = math.sqrt(float(np.dot(a2[sa], both)) * float(np.dot(b2[sb], both)))
         if den > 0:
             c[j] = float(np.dot(a[sa], b[sb])) / den
-    i = int(np.argmax(c))
-    frac = 0.0
-    if 0 < i < len(c) - 1 and np.isfinite(c[i - 1]) and np.isfinite(c[i + 1]):
-        den = c[i - 1] - 2 * c[i] + c[i + 1]
-        if den < 0:
-            frac = 0.5 * (c[i - 1] - c[i + 1]) / den
-    return float((lags[i] + frac) * bin_us)
+    return st.peak_lag_us(c, lags, bin_us)
 
 
 #: bins each rate is smoothed over by :func:`xcorr_lag_pearson_smoothed` (one frame period of

@@ -366,9 +366,15 @@ def xcorr_lag_us(sim: np.ndarray, real: np.ndarray, mask: np.ndarray, bin_us: fl
     n = len(a)
     lags = np.arange(-L, L + 1)
     c = np.array([np.dot(a[max(0, -k):n - max(0, k)], b[max(0, k):n - max(0, -k)]) for k in lags])
+    return peak_lag_us(c, lags, bin_us)
+
+
+def peak_lag_us(c: np.ndarray, lags: np.ndarray, bin_us: float) -> float:
+    """The lag (us) of the peak of a cross-correlation ``c`` over integer bin ``lags``,
+    refined by a parabola through the peak and its neighbours (when both are finite)."""
     i = int(np.argmax(c))
     frac = 0.0
-    if 0 < i < len(c) - 1:
+    if 0 < i < len(c) - 1 and np.isfinite(c[i - 1]) and np.isfinite(c[i + 1]):
         den = c[i - 1] - 2 * c[i] + c[i + 1]
         if den < 0:
             frac = 0.5 * (c[i - 1] - c[i + 1]) / den

@@ -220,3 +220,13 @@ def test_aggregate_layout_is_computed_once_and_changes_nothing(ctx):
         assert all(np.array_equal(a[k], b[k]) for k in a)
     with pytest.raises(ValueError):
         warm[0]["time_mask"][0] = True
+
+
+def test_peak_lag_refines_by_a_parabola_and_skips_missing_neighbours():
+    lags = np.arange(-2, 3)
+    # a parabola with its vertex at +0.25 bins
+    c = -(lags - 0.25) ** 2
+    assert st.peak_lag_us(c, lags, 1000.0) == pytest.approx(250.0)
+    c2 = np.array([-np.inf, 0.0, 1.0, 0.5, 0.0])          # no parabola without both neighbours finite
+    c2[1] = -np.inf
+    assert st.peak_lag_us(c2, lags, 1000.0) == 0.0
