@@ -16,17 +16,18 @@ own random draws, for the random-start and the stationary truths:
 * a test signal (a slow rate, period 100 bins, shifted by 2 and -3 bins) through a mask of 3
   runs of 83 bins.
 
-:func:`xcorr_lag_pearson`, :func:`xcorr_lag_pearson_smoothed` and :func:`quantile_lag` are the
-variants that were tried in the full proof and not kept: ``--proof-with NAME OUT`` runs the ``calibration_proof``
-stage with ``rdnet.calib.stats.xcorr_lag_us`` replaced by one of them (14-30 min;
+:func:`xcorr_lag_pearson`, ``rdnet.calib.stats.pearson_lag_us`` (the Pearson lag of the
+smoothed rates) and :func:`quantile_lag` are the variants that were tried in the full proof as
+the ``lag`` term and not kept: ``--proof-with NAME OUT`` runs the ``calibration_proof`` stage with
+``rdnet.calib.stats.xcorr_lag_us`` replaced by one of them (14-30 min;
 ``benchmarks/results/calibration_proof_lag_pearson.json``: ``pearson`` on the random-start
 truths of the code before 2026-11-27, ``--truth-warmup-us 0 --truth-preroll-us 0`` with
 ``calibrate.warmup_us: 0`` today; ``calibration_proof_lag_pearson_smoothed.json``:
 ``pearson_smoothed`` on the stationary truths, the defaults; ``calibration_proof_lag_quantile.json``:
-``quantile`` (:func:`quantile_lag`), the same). ``--proof-with pearson_smoothed_signature OUT``
-keeps the committed ``lag`` term and uses the smoothed Pearson lag only as latency's own
-statistic (:func:`signature_only`; ``calibration_proof_lag_signature.json``): the one variant
-that did better, not yet in the library.
+``quantile`` (:func:`quantile_lag`), the same). The variant that did better kept the ``lag``
+term and used the smoothed Pearson lag only as latency's own statistic
+(``calibration_proof_lag_signature.json``, measured with a patch before 2026-11-28): that is the
+library's ``lag_smoothed`` statistic today (weight 0), so every ``--proof-with`` run now has it too.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/calib_lag_segments.py    # ~1 min
     PYTHONPATH=$PWD .venv/bin/python benchmarks/calib_lag_segments.py --proof-with pearson_smoothed /tmp/proof
@@ -37,7 +38,6 @@ import argparse
 import dataclasses
 import json
 import logging
-import math
 from pathlib import Path
 
 import numpy as np
@@ -57,47 +57,9 @@ log = logging.getLogger("calib_lag_segments")
 
 def xcorr_lag_pearson(sim: np.ndarray, real: np.ndarray, mask: np.ndarray, bin_us: float,
                       max_lag_us: float) -> float:
-    """:func:`rdnet.calib.stats.xcorr_lag_us` with each lag's correlation the Pearson
-    coefficient of the bin pairs that are both inside ``mask`` (same centring, same
-    parabola refinement)."""
-    m = np.asarray(mask, bool)
-    if not m.any():
-        return 0.0
-    a = np.where(m, sim - sim[m].mean(), 0.0)
-    b = np.where(m, real - real[m].mean(), 0.0)
-    L = int(max(1, min(len(a) - 1, round(max_lag_us / bin_us))))
-    if not a.any() or not b.any():
-        return 0.0
-    n = len(a)
-    lags = np.arange(-L, L + 1)
-    a2, b2 = a * a, b * b
-    c = np.full(lags.size, -np.inf)
-    for j, k in enumerate(lags):
-        sa, sb = slice(max(0, -k), n - max(0, k)), slice(max(0, k), n - max(0, -k))
-        both = m[sa] & m[sb]
-        den = math.sqrt(float(np.dot(a2[sa], both)) * float(np.dot(b2[sb], both)))
-        if den > 0:
-            c[j] = float(np.dot(a[sa], b[sb])) / den
-    return st.peak_lag_us(c, lags, bin_us)
-
-
-#: bins each rate is smoothed over by :func:`xcorr_lag_pearson_smoothed` (one frame period of
-#: the proof's 100 fps scenes at the 2 ms bins of ``calibrate.time_bin_us``)
-SMOOTH_BINS = 5
-
-
-def xcorr_lag_pearson_smoothed(sim: np.ndarray, real: np.ndarray, mask: np.ndarray, bin_us: float,
-                               max_lag_us: float) -> float:
-    """:func:`xcorr_lag_pearson` of both rates smoothed over :data:`SMOOTH_BINS` bins inside
-    ``mask`` (a box filter normalised by the masked bins it covers), so that the ripple at the
-    frame period does not set the lag."""
-    k = np.ones(SMOOTH_BINS) / SMOOTH_BINS
-    m = np.asarray(mask, bool)
-    cover = np.maximum(np.convolve(m.astype(float), k, "same"), 1e-9)
-
-    def smooth(x):
-        return np.where(m, np.convolve(np.where(m, x, 0.0), k, "same") / cover, 0.0)
-    return xcorr_lag_pearson(smooth(sim), smooth(real), m, bin_us, max_lag_us)
+    """:func:`rdnet.calib.stats.pearson_lag_us` without the smoothing (each lag's correlation
+    the Pearson coefficient of the bin pairs both inside ``mask``)."""
+    return st.pearson_lag_us(sim, real, mask, bin_us, max_lag_us, smooth_bins=1)
 
 
 #: cumulative shares at which :func:`quantile_lag` compares the times
@@ -126,43 +88,17 @@ def quantile_lag(sim: np.ndarray, real: np.ndarray, mask: np.ndarray, bin_us: fl
 
 
 ESTIMATORS = {"sum (committed)": st.xcorr_lag_us, "pearson (tried)": xcorr_lag_pearson,
-              "pearson smoothed (tried)": xcorr_lag_pearson_smoothed, "quantile times (tried)": quantile_lag}
-VARIANTS = {"pearson": xcorr_lag_pearson, "pearson_smoothed": xcorr_lag_pearson_smoothed, "quantile": quantile_lag}
-
-
-def signature_only(variant) -> None:
-    """Leave the discrepancy's ``lag`` term as it is and give latency another own statistic,
-    ``lag_sig``: the lag of ``variant`` (same scale and cap as ``lag``), computed beside the
-    other distances with weight 0 (so no fit moves) and used by the signature gate only. The
-    report's figures are skipped (they have no panel for ``lag_sig``)."""
-    import dataclasses
-
-    import rdnet.calib.report as rep
-    from rdnet.calib.effects import EFFECTS
-    plain = st.distances
-
-    def distances(sim, real, ctx):
-        d = plain(sim, real, ctx)
-        lag = variant(sim["rate_time"], real["rate_time"], real["time_mask"], float(ctx.cfg.time_bin_us),
-                      float(ctx.cfg.max_lag_us))
-        d["lag_sig"] = float(min(abs(lag) / st.LAG_SCALE_US, 5.0))
-        return d
-    st.distances = distances
-    EFFECTS["latency"] = dataclasses.replace(EFFECTS["latency"], statistic="lag_sig")
-    rep.figures = lambda cal, out: []
+              "pearson smoothed (tried)": st.pearson_lag_us, "quantile times (tried)": quantile_lag}
+VARIANTS = {"pearson": xcorr_lag_pearson, "pearson_smoothed": st.pearson_lag_us, "quantile": quantile_lag}
 
 
 def run_proof_with(name: str, out: Path, extra: list[str]) -> None:
-    """The ``calibration_proof`` stage with ``xcorr_lag_us`` replaced by ``VARIANTS[name]``
-    (every caller looks it up in ``rdnet.calib.stats`` at call time), or, for a name
-    ``NAME_signature``, with ``VARIANTS[NAME]`` as latency's own statistic only
-    (:func:`signature_only`); outputs under ``out``."""
+    """The ``calibration_proof`` stage with ``xcorr_lag_us`` (the ``lag`` term of the
+    discrepancy and latency's first guess) replaced by ``VARIANTS[name]`` (every caller looks
+    it up in ``rdnet.calib.stats`` at call time); outputs under ``out``."""
     import runpy
     import sys
-    if name.endswith("_signature"):
-        signature_only(VARIANTS[name[: -len("_signature")]])
-    else:
-        st.xcorr_lag_us = VARIANTS[name]
+    st.xcorr_lag_us = VARIANTS[name]
     sys.path.insert(0, str(ROOT / "stages"))
     sys.argv = ["calibration_proof.py", "--out", str(out / "proof"), "--metrics", str(out / "metrics.json"), *extra]
     runpy.run_path(str(ROOT / "stages" / "calibration_proof.py"), run_name="__main__")
@@ -216,8 +152,9 @@ def markdown(out: dict) -> str:
              "draws, linear interpolation, simulation seeds " + ", ".join(map(str, out["seeds"])) + ". "
              "Lags in us (positive: the recording is later), one per seed; `sum` is "
              "`rdnet.calib.stats.xcorr_lag_us`; the variants tried: `pearson` (each lag normalised by its own "
-             f"pairs inside the mask) and `pearson smoothed` (both rates first smoothed over {SMOOTH_BINS} bins, "
-             "one frame period), and `quantile times` (the median shift of the times at which each run's "
+             f"pairs inside the mask) and `pearson smoothed` (both rates first smoothed over "
+             f"{st.LAG_SMOOTH_BINS} bins, one frame period; since 2026-11-28 latency's own statistic "
+             "`lag_smoothed`, weight 0), and `quantile times` (the median shift of the times at which each run's "
              "cumulative rate reaches 10, 20, ..., 90 % of its total). docs/calibration.md, \"Why latency is vetoed\".", ""]
     for truth, res in out["cases"].items():
         lines += [f"## {truth} truth", ""]

@@ -38,7 +38,7 @@ from rdnet.sim.settings import DegradeConfig, SensorConfig
 log = logging.getLogger(__name__)
 
 METRIC = ("weighted sum of normalised distances of event statistics (rdnet.calib.stats): "
-          + ", ".join(STATISTICS) + "; mean over simulation seeds")
+          + ", ".join(k for k, w in STATISTICS.items() if w) + "; mean over simulation seeds")
 
 
 @dataclass

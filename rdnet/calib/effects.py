@@ -80,7 +80,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            shape=(Param("hot_pixel_on_fraction", 0.0, 1.0), Param("hot_pixel_polarity_concentration", 0.0, 1000.0))),
     Effect("timestamp_jitter", (Param("jitter_us", 20.0, 20000.0),), "rate_time",
            "random timestamp noise"),
-    Effect("latency", (Param("latency_us", 50.0, 50000.0),), "lag",
+    Effect("latency", (Param("latency_us", 50.0, 50000.0),), "lag_smoothed",
            "constant delay of the event timestamps"),
     Effect("readout_saturation", (Param("sample_period_us", 20.0, 50000.0),), "iei",
            "readout samples each pixel at most once per period", True),

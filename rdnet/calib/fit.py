@@ -89,7 +89,8 @@ SCREEN_COUNT_TOL = 0.05
 #: drops by more than this many of its seed spreads (the signature gate: a gain that comes
 #: from other statistics is a structural model difference, not the effect's physics).
 #: 0: the own statistic must improve at all. 2 was tried: on the circuit-generator proof it
-#: vetoed a correct latency (lag term 0.43 -> 0.35, 1.0 seed std; README)
+#: vetoed a correct latency (lag term 0.43 -> 0.35, 1.0 seed std; README; latency's own
+#: statistic was the plain ``lag`` then, ``lag_smoothed`` since 2026-11-28)
 SIGNATURE_Z = 0.0
 #: confidence ceiling of an effect that did not pass the screen (it cannot be named)
 SCREENED_CONFIDENCE = 0.25

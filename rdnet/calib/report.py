@@ -12,7 +12,7 @@ import numpy as np
 from rdnet.calib.calibrate import Calibration, finding
 from rdnet.calib.effects import EFFECTS
 from rdnet.calib.fit import SIGNATURE_Z
-from rdnet.calib.stats import IEI_EDGES, TAIL_BANDS
+from rdnet.calib.stats import IEI_EDGES, LAG_SMOOTH_BINS, TAIL_BANDS, peak_lag_us, pearson_lag_curve
 from rdnet.events.io._common import atomic_directory, atomic_output
 
 
@@ -172,6 +172,19 @@ def _plot_statistic(ax, name: str, cal: Calibration) -> None:
             ax.plot(t, s["rate_time"], color=col, lw=0.8, label=lab)
         ax.set_xlabel("time (ms)")
         ax.set_ylabel("events / s")
+    elif name == "lag_smoothed":
+        # the correlation curve itself: where its peak sits is the statistic
+        real, bin_us = cal.real_stats, float(ctx.cfg.time_bin_us)
+        for lab, s, col in series[1:]:
+            lags, c = pearson_lag_curve(s["rate_time"], real["rate_time"], real["time_mask"], bin_us,
+                                        float(ctx.cfg.max_lag_us))
+            if lags.size:
+                peak_ms = peak_lag_us(c, lags, bin_us) * 1e-3
+                ax.plot(lags * bin_us * 1e-3, np.where(np.isfinite(c), c, np.nan), "o-", ms=3, color=col,
+                        label=f"{lab} vs real: peak {peak_ms:.2f} ms")
+        ax.axvline(0.0, color="k", lw=0.6)
+        ax.set_xlabel("delay of the simulation (ms)")
+        ax.set_ylabel(f"Pearson correlation, rates smoothed over {LAG_SMOOTH_BINS} bins")
     elif name in ("pixel_tail", "pixel_quantiles"):
         for lab, s, col in series:
             ax.plot(np.arange(len(s[name])), s[name], "o-", color=col, label=lab)

@@ -181,6 +181,14 @@ def test_a_figure_for_every_effect_and_the_still_pixels_rate_in_hz(hot_cal, tmp_
     fractions = [b.get_height() for b in ax.patches]
     assert fractions[:2] == pytest.approx([float(cal.real_stats["static_on_fraction"]),
                                            float(cal.real_stats["on_fraction"])])
+    # latency's panel is the correlation curve of base and fitted against the recording
+    fig, ax = _figure(figsize=(6, 4))
+    _plot_statistic(ax, "lag_smoothed", cal)
+    curves = [ln for ln in ax.lines if ln.get_label().startswith(("base vs real", "fitted vs real"))]
+    assert len(curves) == 2
+    for ln in curves:
+        y = np.asarray(ln.get_ydata(), float)
+        assert np.nanmax(np.abs(y)) <= 1.0 + 1e-9 and np.isfinite(y).any()
 
 
 def test_caveat_when_the_bandwidth_floor_moves_from_the_declared_one(hot_cal):

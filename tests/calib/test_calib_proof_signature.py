@@ -16,13 +16,13 @@ def evaluation(terms: dict) -> Evaluation:
 
 
 def test_signature_z_measures_the_effects_own_statistic():
-    before = evaluation({"lag": [1.0, 1.1, 0.9], "rate_map": [2.0, 2.2, 1.8]})
-    moved = evaluation({"lag": [0.2, 0.3, 0.1], "rate_map": [2.0, 2.2, 1.8]})
+    before = evaluation({"lag_smoothed": [1.0, 1.1, 0.9], "rate_map": [2.0, 2.2, 1.8]})
+    moved = evaluation({"lag_smoothed": [0.2, 0.3, 0.1], "rate_map": [2.0, 2.2, 1.8]})
     c = score(Candidate(EFFECTS["latency"], {}, moved), before, CalibrateConfig())
     assert c.signature_before == pytest.approx(1.0) and c.signature_after == pytest.approx(0.2)
     assert c.signature_z == pytest.approx(0.8 / 0.1)              # drop / seed std
     # the same total gain from another statistic: the signature does not move
-    other = evaluation({"lag": [1.0, 1.1, 0.9], "rate_map": [1.2, 1.4, 1.0]})
+    other = evaluation({"lag_smoothed": [1.0, 1.1, 0.9], "rate_map": [1.2, 1.4, 1.0]})
     c2 = score(Candidate(EFFECTS["latency"], {}, other), before, CalibrateConfig())
     assert c2.gain == pytest.approx(c.gain)
     assert c2.signature_z == pytest.approx(0.0)

@@ -116,12 +116,67 @@ def test_distances_zero_for_identical_and_grow_with_mismatch(ctx, monkeypatch):
     assert d2["static_on_fraction"] > 1.0 and d2["on_fraction"] > 0.5
     assert d2["rate_map"] == pytest.approx(0.0) and d2["iei"] == pytest.approx(0.0)
     total, terms = st.discrepancy(b, a, ctx)
-    assert total == pytest.approx(sum(terms.values()))
+    assert total == pytest.approx(sum(st.STATISTICS[k] * v for k, v in terms.items()))
+    assert st.STATISTICS["lag_smoothed"] == 0.0         # latency's own statistic only: moves no fit
     # a 3 ms delay shows as a lag
     arr = ctx.real.array.copy()
     arr["t"] += 3000
     c = st.aggregate(st.summarize(Events(arr, W, H), ctx), ctx, [0, 1])
     assert st.distances(a, c, ctx)["lag"] > 0.0
+    assert st.distances(a, c, ctx)["lag_smoothed"] > 0.0
+
+
+def _pearson_lag_reference(sim, real, mask, L):
+    """Straightforward loop: per lag k, the Pearson coefficient over the pairs (i, i + k)
+    both inside ``mask`` of the rates centred on their masked means (no smoothing)."""
+    m = np.asarray(mask, bool)
+    a = np.where(m, sim - sim[m].mean(), 0.0)
+    b = np.where(m, real - real[m].mean(), 0.0)
+    out = []
+    for k in range(-L, L + 1):
+        num = sa = sb = 0.0
+        for i in range(len(a)):
+            j = i + k
+            if 0 <= j < len(a) and m[i] and m[j]:
+                num += a[i] * b[j]
+                sa += a[i] ** 2
+                sb += b[j] ** 2
+        out.append(num / np.sqrt(sa * sb) if sa * sb > 0 else -np.inf)
+    return np.array(out)
+
+
+def test_pearson_lag_curve_matches_a_plain_loop():
+    rng = np.random.default_rng(3)
+    sim, real = rng.random(40), rng.random(40)
+    mask = (np.arange(40) // 7) % 2 == 0
+    lags, c = st.pearson_lag_curve(sim, real, mask, 1000.0, 6000.0, smooth_bins=1)
+    np.testing.assert_array_equal(lags, np.arange(-6, 7))
+    np.testing.assert_allclose(c, _pearson_lag_reference(sim, real, mask, 6), rtol=1e-10)
+
+
+def test_pearson_lag_is_not_pulled_to_zero_by_interleaved_runs():
+    """A slow rate shifted by 2 and -3 bins, seen through 3 runs of 83 bins (as a held-out
+    mask): the plain masked sum loses pairs at every run end as the lag grows and reads
+    nearly 0; the Pearson lag reads the shift (benchmarks/calib_lag_segments.md)."""
+    t = np.arange(500)
+    rate = 1.0 + np.sin(2 * np.pi * t / 200.0) ** 2
+    mask = (t // 83) % 2 == 1
+    for shift in (2, -3):
+        real = np.interp(t - shift, t, rate)
+        assert st.pearson_lag_us(rate, real, mask, 2000.0, 20000.0) == pytest.approx(shift * 2000.0, abs=150.0)
+        assert abs(st.xcorr_lag_us(rate, real, mask, 2000.0, 20000.0)) < abs(shift) * 2000.0 * 0.5
+
+
+def test_pearson_lag_degenerate_inputs():
+    flat, ramp = np.ones(30), np.arange(30.0)
+    on = np.ones(30, bool)
+    assert st.pearson_lag_us(ramp, ramp, np.zeros(30, bool), 1000.0, 5000.0) == 0.0   # empty mask
+    assert st.pearson_lag_us(flat, ramp, on, 1000.0, 5000.0) == 0.0                    # no variance
+    lags, c = st.pearson_lag_curve(flat, ramp, on, 1000.0, 5000.0)
+    assert lags.size == 0 and c.size == 0
+    # a series shorter than the smoothing window still gives a lag, not an error
+    assert np.isfinite(st.pearson_lag_us(np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), np.ones(3, bool),
+                                         1000.0, 5000.0))
 
 
 def test_subsample_events():
