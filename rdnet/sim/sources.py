@@ -33,6 +33,9 @@ log = logging.getLogger(__name__)
 VIDEO_SUFFIXES = (".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm")
 HDF5_SUFFIXES = (".h5", ".hdf5", ".hdf")
+#: frames a video may decode short of the count its container declares (some containers
+#: round it); more missing means a truncated or corrupt file, an error
+VIDEO_FRAME_COUNT_SLACK = 1
 #: GOPRO (Nah et al. 2017) was recorded at 240 frames per second.
 GOPRO_FPS_HZ = 240.0
 
@@ -89,8 +92,11 @@ def folder_images(path: str | Path) -> list[Path]:
     p = Path(path)
     if (p / "sharp").is_dir():
         p = p / "sharp"
-    files = sorted((q for q in p.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES),
-                   key=_natural_key)
+    named = [q for q in p.iterdir() if q.suffix.lower() in IMAGE_SUFFIXES]
+    broken = sorted((q for q in named if q.is_symlink() and not q.exists()), key=_natural_key)
+    if broken:       # a frame that silently went missing would shift every later timestamp
+        raise FormatError(broken[0], None, f"broken symbolic link in the frame folder ({len(broken)} such)")
+    files = sorted((q for q in named if q.is_file()), key=_natural_key)
     if not files:
         raise FormatError(p, None, f"folder has no image files ({', '.join(IMAGE_SUFFIXES)})")
     return files
@@ -101,13 +107,18 @@ def _iter_folder(path, max_frames, fps_hz, linearize, chunk_frames) -> Iterator[
     if max_frames is not None:
         files = files[:max_frames]
     fps = GOPRO_FPS_HZ if fps_hz is None else fps_hz
-    shape = None
+    shape = dtype = None
     for s in range(0, len(files), chunk_frames):
         ims = []
         for q in files[s:s + chunk_frames]:
             img = cv2.imread(str(q), cv2.IMREAD_UNCHANGED)
             if img is None:
                 raise FormatError(q, None, "cannot decode image")
+            if dtype is None:
+                dtype = img.dtype
+            elif img.dtype != dtype:    # each is scaled by its own full scale: mixed depths are two sources
+                raise FormatError(q, None, f"image is {img.dtype} ({8 * img.dtype.itemsize}-bit), the first "
+                                  f"is {dtype} ({8 * dtype.itemsize}-bit): one bit depth per frame folder")
             img = _to_linear(img, linearize)
             if shape is None:
                 shape = img.shape
@@ -123,6 +134,7 @@ def _iter_video(path, max_frames, fps_hz, linearize, chunk_frames) -> Iterator[F
         raise FormatError(path, None, "cannot open video")
     try:
         fps = fps_hz if fps_hz is not None else float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+        declared = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
         n_read, last_t = 0, None
         buf, ts = [], []
         while max_frames is None or n_read < max_frames:
@@ -147,6 +159,10 @@ def _iter_video(path, max_frames, fps_hz, linearize, chunk_frames) -> Iterator[F
             yield Frames(np.stack(buf), np.asarray(ts, np.int64), np.zeros(len(buf), np.int64))
         if n_read == 0:
             raise FormatError(path, None, "video has no decodable frames")
+        wanted = declared if max_frames is None else min(declared, max_frames)
+        if n_read < wanted - VIDEO_FRAME_COUNT_SLACK:
+            raise FormatError(path, None, f"video ends after {n_read} of the {declared} frames its header "
+                              "declares (truncated or undecodable)")
     finally:
         cap.release()
 

@@ -104,3 +104,38 @@ def test_bad_inputs(tmp_path):
     write_recording(tmp_path / "ev.h5", Recording(4, 4, events=ev))
     with pytest.raises(FormatError, match="frames"):
         open_frames(tmp_path / "ev.h5")
+
+
+def test_a_truncated_video_is_refused(tmp_path):
+    """An AVI cut at 60 % still opens and decodes its first frames; its header declares all
+    of them, so the missing rest is an error, not a shorter clip."""
+    ims = _frames_u8(n=20, color=True)
+    path = tmp_path / "clip.avi"
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 50.0, (32, 24))
+    for im in ims:
+        vw.write(im)
+    vw.release()
+    assert len(open_frames(path)) == 20
+    data = path.read_bytes()
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    with pytest.raises(FormatError, match="of the 20 frames its header declares"):
+        open_frames(cut)
+    assert len(open_frames(cut, max_frames=5)) == 5      # the frames asked for are all there
+
+
+def test_frame_folder_refuses_broken_links_and_mixed_bit_depths(tmp_path):
+    d = tmp_path / "frames"
+    d.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(d / f"{i}.png"), np.full((4, 4), 40 * i, np.uint8))
+    assert len(open_frames(d)) == 3
+    (d / "3.png").symlink_to(tmp_path / "gone.png")
+    with pytest.raises(FormatError, match="broken symbolic link") as e:
+        open_frames(d)
+    assert "3.png" in str(e.value)
+    (d / "3.png").unlink()
+    cv2.imwrite(str(d / "3.png"), np.full((4, 4), 40 * 256, np.uint16))
+    with pytest.raises(FormatError, match="uint16 .16-bit.*uint8 .8-bit") as e:
+        open_frames(d)
+    assert "3.png" in str(e.value)
