@@ -20,7 +20,12 @@ def main(args, params):
         import dataclasses
         train_cfg = dataclasses.replace(train_cfg, stage2_input=args.stage2_input)
     init_from_env(train_cfg.device)                       # under torchrun (study.launcher): join the group
-    net = network(params, args.network) if args.network else NetworkConfig(task=args.task, events=args.events)
+    if args.network and args.events is not None:
+        from rdnet.errors import ConfigError
+        raise ConfigError("--events", f"goes with --task; network {args.network!r} reads the events of "
+                          f"networks.{args.network}.events in params.yaml")
+    net = (network(params, args.network) if args.network
+           else NetworkConfig(task=args.task, events=args.events or "degraded"))
     study = section(params, "study")
     init_deblur = None
     if net.task == "rdnet" and study.rdnet_stage2_init:
@@ -39,7 +44,8 @@ def _parser():
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--network", help="an entry of the `networks` section of params.yaml")
     g.add_argument("--task", help="a training task (restore, rdnet, deblur, ...)")
-    p.add_argument("--events", choices=["degraded", "undegraded"], default="degraded", help="with --task")
+    p.add_argument("--events", choices=["degraded", "undegraded"], default=None,
+                   help="with --task deblur or deblurnet_matched: the input events (default degraded)")
     p.add_argument("--restore-output", choices=["signed_masked", "counts"], default=None,
                    help="overrides train.restore_output (stage-1 output of restore/rdnet tasks)")
     p.add_argument("--stage2-input", choices=["restored", "dual"], default=None,

@@ -10,7 +10,7 @@ import pytest
 
 from rdnet.cli import main
 from rdnet.config import load_params, parse_set
-from rdnet.errors import ConfigError
+from rdnet.errors import ConfigError, FormatError
 
 
 def _run(capsys, argv):
@@ -218,3 +218,52 @@ def test_one_hour_bound_is_shared_and_named():
     with pytest.raises(ConfigError, match=r"'calibrate.threads': must be at most 256, got 257$"):
         CalibrateConfig(threads=257)
     at_most("k", 5, 5)
+
+
+def test_train_refuses_events_a_task_does_not_read_and_a_pairs_file_that_is_not_a_file(capsys, tmp_path):
+    """`--events undegraded` with a restore task was silently replaced by the degraded events
+    (restore and rdnet always read those); a FIFO or a folder as `--train` was "not found"."""
+    import os
+    from rdnet.train.synthetic import write_synthetic_pairs
+    good = write_synthetic_pairs(tmp_path / "good.h5", n=4, bins=3, height=20, width=20, seed=1)
+    params = tmp_path / "params.yaml"
+    params.write_text("train: {iterations: 2, batch_size: 2, crop: 16, device: cpu}\n")
+    for task in ("restore", "rdnet", "image_only"):
+        rc, _, err = _run(capsys, ["train", "--task", task, "--events", "undegraded", "--train", str(good),
+                                   "--out", str(tmp_path / "out"), "--params", str(params), "--no-progress"])
+        assert rc == 2 and f"task '{task}' reads no choice of events" in _one_line(err)
+    os.mkfifo(tmp_path / "fifo.h5")
+    (tmp_path / "dir.h5").mkdir()
+    for name in ("fifo.h5", "dir.h5"):
+        rc, _, err = _run(capsys, ["train", "--task", "deblur", "--train", str(tmp_path / name),
+                                   "--out", str(tmp_path / "out"), "--params", str(params), "--no-progress"])
+        assert rc == 2 and f"{name}: not a regular file" in _one_line(err)
+    rc, _, err = _run(capsys, ["train", "--task", "deblur", "--train", str(tmp_path / "nope.h5"),
+                               "--out", str(tmp_path / "out"), "--params", str(params), "--no-progress"])
+    assert rc == 2 and "nope.h5: pairs file not found" in _one_line(err)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_checkpoint_that_is_a_folder_is_not_a_regular_file(tmp_path):
+    from rdnet.train.checkpoint import read_checkpoint
+    (tmp_path / "model.pt").mkdir()
+    with pytest.raises(FormatError, match="model.pt: not a regular file"):
+        read_checkpoint(tmp_path / "model.pt")
+    with pytest.raises(FormatError, match="checkpoint not found"):
+        read_checkpoint(tmp_path / "other.pt")
+
+
+def test_the_train_stage_refuses_events_beside_a_network(tmp_path):
+    """`stages/train.py --network NAME --events ...` ignored --events (the network's events come
+    from params.yaml): now exit 2 with one line."""
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run([sys.executable, str(root / "stages" / "train.py"), "--network", "deblur_degraded",
+                        "--events", "undegraded", "--out", str(tmp_path / "out"),
+                        "--params", str(root / "params.yaml")],
+                       capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "'--events': goes with --task; network 'deblur_degraded' reads the events of networks.deblur_degraded.events" in r.stderr
+    assert not (tmp_path / "out").exists()

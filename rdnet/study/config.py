@@ -112,16 +112,14 @@ def calibrated_configs(report_path: str | Path, option: str = "study.degrade_fro
     folder) is refused before anything is read."""
     import json
     from rdnet.errors import FormatError
+    from rdnet.events.io._common import require_file
     from rdnet.sim.settings import DegradeConfig, SensorConfig
     p = Path(report_path)
-    if p.exists() and not p.is_file():
-        raise FormatError(p, None, "not a regular file")
+    if not p.exists():
+        raise FormatError(p, None, f"no such file ({option})")
+    require_file(p)                     # not a regular file (FIFO, folder), permission denied
     try:
         rep = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise FormatError(p, None, f"no such file ({option})") from None
-    except PermissionError:
-        raise FormatError(p, None, "permission denied") from None
     except (OSError, ValueError) as e:
         raise FormatError(p, None, f"not a JSON calibration report: {e}") from None
     fitted = rep.get("fitted_config") if isinstance(rep, dict) else None

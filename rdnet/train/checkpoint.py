@@ -28,6 +28,7 @@ from torch import nn
 
 import rdnet
 from rdnet.errors import ConfigError, FormatError
+from rdnet.events.io._common import require_file
 
 FORMAT = "rdnet-checkpoint-1"
 REQUIRED_KEYS = ("format", "task", "model_kind", "model_args", "model_class", "model_config",
@@ -116,8 +117,9 @@ def save_checkpoint(path: str | Path, checkpoint: Mapping) -> Path:
 def read_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dict:
     """Load and check the top-level layout of a checkpoint (FormatError otherwise)."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise FormatError(path, None, "checkpoint not found")
+    require_file(path)                  # a FIFO or folder: "not a regular file", not "not found"
     try:
         ck = torch.load(path, map_location=device, weights_only=True)
     except Exception as e:  # corrupt zip, truncated file, foreign pickle ...

@@ -51,6 +51,7 @@ import torch
 from torch.utils.data import Dataset, Sampler
 
 from rdnet.errors import ConfigError, FormatError
+from rdnet.events.io._common import require_file
 from rdnet.sim.blur import POLARITY_KEYS
 
 #: datasets every pairs file must hold: name -> number of dimensions.
@@ -145,8 +146,9 @@ def read_pairs_info(path: str | Path) -> PairsInfo:
     import h5py
 
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise FormatError(path, None, "pairs file not found")
+    require_file(path)                  # a FIFO or folder: "not a regular file", not "not found"
     try:
         f = h5py.File(path, "r")
     except OSError as e:

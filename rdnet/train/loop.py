@@ -67,6 +67,9 @@ TASKS = {"restore": "restore", "restore_events": "restore", "deblur": "deblur",
 RESUME_FREE = ("log_every", "ckpt_every", "num_workers", "threads", "device", "dvclive")
 #: tasks trained on stage-1 rows only (validation sequences held out, decision fitted).
 RESTORE_TASKS = ("restore", "restore_events")
+#: tasks whose input events are a choice (``events``: undegraded or degraded); every other
+#: task takes the default, degraded
+EVENT_INPUT_TASKS = ("deblur", "deblurnet_matched")
 
 
 def resolve_device(name: str, info: DistInfo | None = None, key: str = "train.device") -> torch.device:
@@ -386,8 +389,10 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
         raise ConfigError("task", f"unknown task {task!r}; known: {', '.join(TASKS)}")
     if events not in ("undegraded", "degraded"):
         raise ConfigError("events", f"must be undegraded or degraded, got {events!r}")
-    if task in RESTORE_TASKS + ("rdnet",):
-        events = "degraded"
+    if events != "degraded" and task not in EVENT_INPUT_TASKS:
+        raise ConfigError("events", f"task {task!r} reads no choice of events (restore and rdnet read the "
+                          f"degraded ones and target the undegraded; image_only reads none); only "
+                          f"{', '.join(EVENT_INPUT_TASKS)} take events: {events}")
     info = dist_info()
     device = resolve_device(cfg.device, info)
     if cfg.threads > 0:
