@@ -134,8 +134,9 @@ def markdown(result: dict) -> str:
                       f"z {_fmt(e['signature_z'], '.1f')}" for e in named) or "-",
             f"{r['threshold_scale']:.3f}", str(r["frame_interpolation"]),
             f"{r['heldout_before']:.2f} -> {r['heldout_after']:.2f}", f"{r['wall_s']:.0f}"]) + " |")
-    lines += ["", "Own statistic: its held-out term of the discrepancy (rdnet.calib.stats; `lag` is "
-              "|cross-correlation lag| / 1 ms, capped at 5), before = the fit before the effect is added, z = its drop in seed "
+    lines += ["", "Own statistic: its held-out term of the discrepancy (rdnet.calib.stats; latency's, `lag_smoothed`, is "
+              "|lag of the highest Pearson correlation of the event rates smoothed over 5 bins| / 1 ms, capped at 5, "
+              "with weight 0 in the discrepancy), before = the fit before the effect is added, z = its drop in seed "
               "standard deviations (the signature gate names an effect only with z > 0).",
               "", "Per effect over the seeds (the runner-up candidates included):", "",
               "| effect | seeds naming it | median confidence | max confidence | parameter range when named "
