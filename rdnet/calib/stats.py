@@ -385,9 +385,12 @@ def xcorr_lag_us(sim: np.ndarray, real: np.ndarray, mask: np.ndarray, bin_us: fl
 
 
 def _lagged_dots(a: np.ndarray, b: np.ndarray, L: int) -> np.ndarray:
-    """``sum_i a[i] * b[i + k]`` for k = -L .. L."""
+    """``sum_i a[i] * b[i + k]`` for k = -L .. L: one matrix-vector product of the 2L + 1
+    windows of ``b`` padded with L zeros at each end (only the lags asked for, where a full
+    correlation would take all 2n - 1)."""
     n = len(a)
-    return np.correlate(b, a, "full")[n - 1 - L:n + L]
+    padded = np.concatenate([np.zeros(L), np.asarray(b, np.float64), np.zeros(L)])
+    return np.lib.stride_tricks.sliding_window_view(padded, n) @ np.asarray(a, np.float64)
 
 
 def pearson_lag_curve(sim: np.ndarray, real: np.ndarray, mask: np.ndarray, bin_us: float,
