@@ -21,7 +21,7 @@ Writes ``benchmarks/results/restore_count_head.{json,md}``.
 from __future__ import annotations
 
 import argparse
-import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +32,7 @@ from rdnet.nn.decision import decide_counts, polarity_grid, support_applies
 from rdnet.train.checkpoint import load_model, read_checkpoint
 from rdnet.train.data import PairsDataset
 from rdnet.train.loop import predict_counts
+from restore_train_range import write_results
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -99,11 +100,10 @@ def main(argv=None) -> int:
     ap.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "restore_count_head")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
     rows = [measure(name, split, 1 if split == "test" else 4)
             for name in ("restore_image", "restore_events") for split in ("test", "train")]
-    args.results.with_suffix(".json").write_text(json.dumps(rows, indent=1) + "\n")
-    args.results.with_suffix(".md").write_text(markdown(rows))
-    print(markdown(rows))
+    write_results(args.results.with_suffix(".json"), {"rows": rows}, lambda r: markdown(r["rows"]))
     return 0
 
 
