@@ -378,10 +378,7 @@ def xcorr_lag_us(sim: np.ndarray, real: np.ndarray, mask: np.ndarray, bin_us: fl
     L = int(max(1, min(len(a) - 1, round(max_lag_us / bin_us))))
     if not a.any() or not b.any() or L < 1:
         return 0.0
-    n = len(a)
-    lags = np.arange(-L, L + 1)
-    c = np.array([np.dot(a[max(0, -k):n - max(0, k)], b[max(0, k):n - max(0, -k)]) for k in lags])
-    return peak_lag_us(c, lags, bin_us)
+    return peak_lag_us(_lagged_dots(a, b, L), np.arange(-L, L + 1), bin_us)
 
 
 def _lagged_dots(a: np.ndarray, b: np.ndarray, L: int) -> np.ndarray:
