@@ -253,9 +253,13 @@ def section(params: Mapping, name: str, source: str | Path | None = None):
 
 
 def positive(key: str, value: float, *, allow_zero: bool = True) -> None:
-    """Range check helper for ``__post_init__``."""
+    """Range check helper for ``__post_init__``: a finite number ``>= 0`` (``> 0`` without
+    ``allow_zero``). Infinity is refused too: no setting means "unbounded" by it, and an
+    infinite threshold, rate or epsilon only gave empty or NaN results."""
     if value != value or value < 0 or (not allow_zero and value == 0):
         raise ConfigError(key, f"must be {'>= 0' if allow_zero else '> 0'}, got {value}")
+    if value == float("inf"):
+        raise ConfigError(key, "must be finite, got inf")
 
 
 #: one hour in microseconds: the bound of the settings that are durations in int64

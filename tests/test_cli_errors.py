@@ -267,3 +267,50 @@ def test_the_train_stage_refuses_events_beside_a_network(tmp_path):
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "'--events': goes with --task; network 'deblur_degraded' reads the events of networks.deblur_degraded.events" in r.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_frames_beyond_2_52_us_are_refused_before_the_simulator(capsys, tmp_path):
+    """Frames at 2^53 us once crashed `simulate` (double free: float64 frame times collided and
+    the pixel kernel wrote out of bounds); 2^52 is the bound, epoch times (~1.8e15) pass."""
+    import numpy as np
+    from rdnet.events import Frames, Recording
+    from rdnet.events.io import save
+    from rdnet.events.recording import MAX_FRAME_TIME_US
+    images = np.random.default_rng(0).random((3, 8, 8)).astype(np.float32)
+    Frames(images, 1_800_000_000_000_000 + np.arange(3) * 100, 0)       # Unix time in us: fine
+    with pytest.raises(Exception, match=r"beyond \+-2\^52 us"):
+        Frames(images, MAX_FRAME_TIME_US + np.arange(3) * 100, 0)
+    # through the CLI: a file written before the check existed (the writer validates too)
+    import h5py
+    save(tmp_path / "rec.h5", Recording(8, 8, frames=Frames(images, np.arange(3) * 100, 0)))
+    with h5py.File(tmp_path / "rec.h5", "r+") as f:
+        f["frames/t"][:] = 2 ** 53 + np.arange(3) * 100
+    rc, _, err = _run(capsys, ["simulate", str(tmp_path / "rec.h5"), str(tmp_path / "out.h5"), "--no-progress"])
+    assert rc == 2 and "rec.h5: field 'frames/t': timestamp" in _one_line(err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.h5"]
+
+
+def test_deblur_refuses_to_write_over_its_input(capsys, tmp_path, make_recording):
+    """`rdnet deblur OUT/restored.h5 OUT` replaced the recording it read and exited 0."""
+    from rdnet.events.io import save
+    (tmp_path / "out").mkdir()
+    rec = tmp_path / "out" / "restored.h5"
+    save(rec, make_recording(n_events=200, n_frames=4))
+    before = rec.read_bytes()
+    rc, _, err = _run(capsys, ["deblur", str(rec), str(tmp_path / "out"), "--no-progress"])
+    assert rc == 2 and "restored.h5: output is the input file" in _one_line(err)
+    assert rec.read_bytes() == before and sorted(p.name for p in (tmp_path / "out").iterdir()) == ["restored.h5"]
+
+
+def test_infinite_settings_are_refused():
+    """`--set sensor.threshold_on=.inf` (or 1e400) passed the shared range check and gave 0
+    events; `restore.gef_eps=.inf` dropped every event."""
+    from rdnet.config import positive
+    from rdnet.restore.settings import RestoreConfig
+    from rdnet.sim.settings import SensorConfig
+    for make, key in ((lambda: SensorConfig(threshold_on=float("inf")), "sensor.threshold_on"),
+                      (lambda: RestoreConfig(gef_eps=float("inf")), "restore.gef_eps")):
+        with pytest.raises(ConfigError) as e:
+            make()
+        assert e.value.key == key and "must be finite" in str(e.value)
+    positive("x", 1e300)                                   # large but finite: still accepted here

@@ -55,15 +55,11 @@ def run(args) -> int:
     from rdnet.errors import FormatError
     from rdnet.events.io import event_groups, format_of, load, read_events, save
     from rdnet.events.io.dispatch import WRITABLE
+    from rdnet.events.io._common import refuse_input_as_output
     in_fmt, out_fmt = format_of(args.input), format_of(args.output)
     if out_fmt not in WRITABLE:
         raise FormatError(args.output, None, f"{out_fmt} is read-only; write .h5, .txt, .npz or .npy")
-    try:
-        same = args.output.resolve() == args.input.resolve()
-    except (OSError, RuntimeError) as e:          # a symlink loop (RuntimeError before Python 3.13)
-        raise FormatError(args.output, None, f"cannot resolve the path ({e})") from None
-    if same:
-        raise FormatError(args.output, None, "output is the input file")
+    refuse_input_as_output(args.output, args.input)
     if in_fmt in _STREAMED_IN and (out_fmt == "npy" or (out_fmt == "hdf5" and in_fmt != "hdf5")):
         n_ev, n_fr, w, h = _streamed(args, out_fmt)
     else:

@@ -97,6 +97,7 @@ def run(args) -> int:
     from rdnet.errors import FormatError, ValidationError
     from rdnet.events.core import Events
     from rdnet.events.io import H5RecordingWriter
+    from rdnet.events.io._common import refuse_input_as_output
     from rdnet.events.io.hdf5 import BackgroundWrites
     from rdnet.sim.pair import frame_chunks, prefetch, stream_events
     from rdnet.sim.randomize import degradation_level, draw_degrade
@@ -114,8 +115,7 @@ def run(args) -> int:
         raise ValidationError("--chunk", f"must be >= 1, got {args.chunk}")
     if args.output.suffix.lower() not in (".h5", ".hdf5", ".hdf"):
         raise FormatError(args.output, None, "output must be an HDF5 recording (.h5)")
-    if args.output.exists() and args.input.exists() and args.output.resolve() == args.input.resolve():
-        raise FormatError(args.output, None, "output is the input file")
+    refuse_input_as_output(args.output, args.input)
     rng = np.random.default_rng(args.seed)
     degrade = base
     if args.split is not None:

@@ -147,8 +147,8 @@ def deblur_recording(recording: str | Path, out: str | Path, params: dict, *,
 
     out = Path(out)
     data_out = out if data_out is None else Path(data_out)
-    check_output_folder(out, ("consistency.json", "montage.png"))    # before the work, not after it
-    check_output_folder(data_out, ("restored.h5",))
+    check_output_folder(out, ("consistency.json", "montage.png"), inputs=(recording,))  # before the work
+    check_output_folder(data_out, ("restored.h5",), inputs=(recording,))
     x = prepare(recording, params, checkpoint)
     cfg, frames, images = x.cfg, x.frames, x.images
     n, C, H, W = images.shape

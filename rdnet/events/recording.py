@@ -9,6 +9,12 @@ from rdnet.errors import ValidationError
 from rdnet.events.core import Events
 
 
+#: frame timestamps must stay below this in magnitude (2^52 us, the year 2112 as Unix time in
+#: microseconds): the simulator interpolates frame times in float64, whose spacing reaches 1 us
+#: there; at 2^53 upsampled times collided and the pixel kernel wrote out of bounds
+MAX_FRAME_TIME_US = 2 ** 52
+
+
 @dataclass(frozen=True)
 class Frames:
     """Intensity frames with their mid-exposure timestamps.
@@ -51,6 +57,10 @@ class Frames:
             raise ValidationError("frames/t", f"expected {n} timestamps, got shape {t.shape}")
         if exp.shape != (n,):
             raise ValidationError("frames/exposure_us", f"expected {n} exposures, got shape {exp.shape}")
+        if t.size and int(np.abs(t).max()) >= MAX_FRAME_TIME_US:
+            raise ValidationError("frames/t", f"timestamp {int(t[np.argmax(np.abs(t))])} us is beyond +-2^52 us "
+                                  "(year 2112 as Unix time): the simulator's float64 frame times would lose "
+                                  "microseconds")
         if n > 1 and np.any(np.diff(t) <= 0):
             i = int(np.flatnonzero(np.diff(t) <= 0)[0])
             raise ValidationError("frames/t", f"timestamps not increasing at frame {i + 1} ({int(t[i])} -> {int(t[i + 1])} us)")

@@ -160,17 +160,32 @@ def _taken_by_folder(path: Path) -> FormatError:
     return FormatError(path, None, "exists and is a folder (a file is written there)")
 
 
-def check_output_folder(path: str | Path, files: Iterable[str] = ()) -> Path:
+def refuse_input_as_output(output: str | Path, *inputs: str | Path) -> None:
+    """FormatError when ``output`` is one of ``inputs`` (after resolving links): writing it
+    would replace the data being read."""
+    out = Path(output)
+    try:
+        resolved = out.resolve()                   # also when it does not exist: a loop is refused here
+        same = any(Path(i).exists() and resolved == Path(i).resolve() for i in inputs)
+    except (OSError, RuntimeError) as e:          # a symlink loop (RuntimeError before Python 3.13)
+        raise FormatError(out, None, f"cannot resolve the path ({e})") from None
+    if same:
+        raise FormatError(out, None, "output is the input file")
+
+
+def check_output_folder(path: str | Path, files: Iterable[str] = (), inputs: Iterable[str | Path] = ()) -> Path:
     """Fail early, before the work, for an output folder that cannot take the output:
     ``path`` exists and is not a folder, one of the ``files`` it will hold exists there as a
-    folder, or its nearest existing ancestor cannot be written to (FormatError naming it).
-    Creates nothing (the write probe is an unnamed temporary file)."""
+    folder or is one of the ``inputs`` (:func:`refuse_input_as_output`), or its nearest
+    existing ancestor cannot be written to (FormatError naming it). Creates nothing (the
+    write probe is an unnamed temporary file)."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise FormatError(path, None, "exists and is not a folder (the output folder)")
     for name in files:
         if (path / name).is_dir():
             raise _taken_by_folder(path / name)
+        refuse_input_as_output(path / name, *inputs)
     probe = path
     while not probe.exists():
         probe = probe.parent
