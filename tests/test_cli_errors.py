@@ -314,3 +314,33 @@ def test_infinite_settings_are_refused():
             make()
         assert e.value.key == key and "must be finite" in str(e.value)
     positive("x", 1e300)                                   # large but finite: still accepted here
+
+
+def test_a_huge_sensor_size_in_a_file_is_refused(capsys, tmp_path):
+    """An npz whose width and height say 100000 gave an ArrayMemoryError traceback in `info`
+    and `restore`; the file's size now has the same cap as --width/--height."""
+    import numpy as np
+    from rdnet.events.core import MAX_SENSOR_SIDE
+    path = tmp_path / "big.npz"
+    np.savez(path, t=np.arange(5, dtype=np.int64), x=np.zeros(5, np.int64), y=np.zeros(5, np.int64),
+             p=np.ones(5, np.int64), width=100000, height=100000)
+    for argv in (["info", str(path)], ["restore", str(path), str(tmp_path / "o.h5"), "--method", "baf",
+                                       "--no-progress"]):
+        rc, _, err = _run(capsys, argv)
+        assert rc == 2 and f"at most {MAX_SENSOR_SIDE} pixels a side" in _one_line(err) and "big.npz" in _one_line(err)
+    assert not list(tmp_path.glob("o.*"))
+
+
+def test_a_closed_stdout_pipe_ends_quietly(tmp_path, make_recording, monkeypatch):
+    """`rdnet info rec.h5 | head -1` ended with a BrokenPipeError traceback: a stdout whose
+    reader went away now ends the command quietly with 141 (128 + SIGPIPE), as Unix tools do."""
+    import io
+    import sys
+    from rdnet.events.io import save
+    save(tmp_path / "rec.h5", make_recording(n_events=50))
+
+    class Closed(io.StringIO):
+        def write(self, s):
+            raise BrokenPipeError(32, "Broken pipe")
+    monkeypatch.setattr(sys, "stdout", Closed())
+    assert main(["info", str(tmp_path / "rec.h5")]) == 141

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 
 from rdnet import __version__
@@ -44,6 +45,15 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # the reader of stdout went away (`rdnet info rec.h5 | head -1`): as a Unix tool does,
+        # stop quietly; stdout is pointed at /dev/null so the interpreter's final flush
+        # does not raise again
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (AttributeError, OSError, ValueError):   # a stdout that is no file (tests, embedding)
+            pass
+        return 141
     return int(rc or 0)
 
 

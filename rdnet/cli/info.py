@@ -31,11 +31,10 @@ def add_sensor_size_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--height", type=int, default=None, help="sensor height (text files without a size header)")
 
 
-#: the largest ``--width``/``--height`` taken (event sensors are at most 1280 x 960 today)
-MAX_SENSOR_SIDE = 8192
 
 
 def sensor_size_of(args) -> tuple[int, int] | None:
+    from rdnet.events.core import MAX_SENSOR_SIDE
     if (args.width is None) != (args.height is None):
         raise ConfigError("--width/--height", "give both or neither")
     if args.width is None:

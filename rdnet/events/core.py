@@ -47,6 +47,11 @@ def _check_columns(t, x, y, p, width: int, height: int) -> None:
         raise ValidationError("p", f"polarity {int(p[i])} at index {i}; must be 0 (OFF) or 1 (ON)")
 
 
+#: the largest sensor side taken, from a file or ``--width``/``--height`` (event sensors are
+#: at most 1280 x 960 today; a 100000 x 100000 header once ran the per-pixel maps out of memory)
+MAX_SENSOR_SIDE = 8192
+
+
 @dataclass(frozen=True)
 class Events:
     """Time-sorted events of one sensor.
@@ -79,6 +84,9 @@ class Events:
             raise ValidationError("array", f"expected 1-D array, got shape {arr.shape}")
         if int(self.width) <= 0 or int(self.height) <= 0:
             raise ValidationError("width/height", f"sensor size must be positive, got {self.width}x{self.height}")
+        if max(int(self.width), int(self.height)) > MAX_SENSOR_SIDE:
+            raise ValidationError("width/height", f"at most {MAX_SENSOR_SIDE} pixels a side (larger than any event "
+                                  f"sensor; per-pixel maps of that size do not fit), got {self.width}x{self.height}")
         object.__setattr__(self, "width", int(self.width))
         object.__setattr__(self, "height", int(self.height))
         if self.validate:
