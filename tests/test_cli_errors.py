@@ -344,3 +344,18 @@ def test_a_closed_stdout_pipe_ends_quietly(tmp_path, make_recording, monkeypatch
             raise BrokenPipeError(32, "Broken pipe")
     monkeypatch.setattr(sys, "stdout", Closed())
     assert main(["info", str(tmp_path / "rec.h5")]) == 141
+
+
+def test_frames_only_to_npy_and_simulate_to_hdf_are_refused(capsys, tmp_path, make_recording):
+    """A frames-only HDF5 converted to .npy wrote an empty file with exit 0 (.npz refused it);
+    `simulate` wrote a `.hdf` file that no reader takes."""
+    import dataclasses
+    from rdnet.events.io import save
+    rec = make_recording(n_events=50, n_frames=3)
+    save(tmp_path / "frames.h5", dataclasses.replace(rec, events=None))
+    rc, _, err = _run(capsys, ["convert", str(tmp_path / "frames.h5"), str(tmp_path / "o.npy")])
+    assert rc == 2 and "frames.h5: field 'events': recording has no events" in _one_line(err)
+    save(tmp_path / "rec.h5", rec)
+    rc, _, err = _run(capsys, ["simulate", str(tmp_path / "rec.h5"), str(tmp_path / "o.hdf"), "--no-progress"])
+    assert rc == 2 and "o.hdf: output must be an HDF5 recording (.h5)" in _one_line(err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frames.h5", "rec.h5"]

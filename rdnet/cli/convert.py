@@ -33,6 +33,9 @@ def _streamed(args, out_fmt: str) -> tuple[int, int, int, int]:
     from rdnet.events.io import H5RecordingWriter, open_events, write_npy_chunks
     with open_events(args.input, sensor_size=sensor_size_of(args)) as s:
         if out_fmt == "npy":
+            if not s.has_events:                  # as write_npy says for a whole recording
+                from rdnet.errors import FormatError
+                raise FormatError(args.input, "events", "recording has no events (.npy holds events only)")
             if s.has_frames:
                 logging.getLogger(__name__).warning("%s: frames not written (.npy holds events only)", args.output)
             return write_npy_chunks(args.output, progress_chunks(s, args.progress)), 0, s.width, s.height

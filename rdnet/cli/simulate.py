@@ -113,7 +113,7 @@ def run(args) -> int:
     interp = None if args.no_interpolate else interp_cfg
     if args.chunk < 1:
         raise ValidationError("--chunk", f"must be >= 1, got {args.chunk}")
-    if args.output.suffix.lower() not in (".h5", ".hdf5", ".hdf"):
+    if args.output.suffix.lower() not in (".h5", ".hdf5"):          # what the readers take
         raise FormatError(args.output, None, "output must be an HDF5 recording (.h5)")
     refuse_input_as_output(args.output, args.input)
     rng = np.random.default_rng(args.seed)
