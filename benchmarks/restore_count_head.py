@@ -2,7 +2,9 @@
 
 For the study's count-output restorers (``models/restore_image`` and ``models/restore_events``,
 seed 0; ``dvc repro`` first) on the simulated test split (``data/pairs/test.h5``, degradations
-disjoint from training) and on every 4th row of the training split, it compares
+disjoint from training), on the same test sequences rendered by the independent circuit
+generator (``rdnet.study.independent.circuit_pairs``, one draw, as the ``restoration_circuit``
+stage makes them) and on every 4th row of the training split, it compares
 
 * the occupancy head with the truth: the sum of the occupancy probabilities over the voxels
   against the number of voxels the undegraded events occupy (1 = calibrated);
@@ -30,7 +32,7 @@ import torch
 from rdnet.eval.events import match_metrics
 from rdnet.nn.decision import decide_counts, polarity_grid, support_applies
 from rdnet.train.checkpoint import load_model, read_checkpoint
-from rdnet.train.data import PairsDataset
+from rdnet.train.data import PairsDataset, read_pairs_info
 from rdnet.train.loop import predict_counts
 from restore_train_range import write_results
 
@@ -53,13 +55,11 @@ def expected_count_decision(mu: np.ndarray, prob: np.ndarray, support) -> np.nda
     return out
 
 
-def measure(name: str, split: str, every: int) -> dict:
+def measure(name: str, split: str, pairs: Path, every: int) -> dict:
     path = ROOT / "models" / name / "seed0" / "model.pt"
     dec = read_checkpoint(path)["extra"]["decision"]
     net = load_model(path)
-    pairs = ROOT / "data" / "pairs" / f"{split}.h5"
-    n = PairsDataset(pairs, events="degraded").info.n
-    data = PairsDataset(pairs, events="degraded", rows=np.arange(0, n, every))
+    data = PairsDataset(pairs, events="degraded", rows=np.arange(0, read_pairs_info(pairs).n, every))
     mu, prob, target, support = predict_counts(net, data, torch.device("cpu"), image=name == "restore_image",
                                                with_support=True)
     sup = support if support_applies(dec) else None
@@ -80,7 +80,8 @@ def measure(name: str, split: str, every: int) -> dict:
 
 def markdown(rows: list[dict]) -> str:
     lines = ["# Where the restorers' count ratio is lost", "",
-             "Seed 0 of the study's count-output restorers; `test`: the simulated test split (all rows), `train`: "
+             "Seed 0 of the study's count-output restorers; `test`: the simulated test split (all rows), `test, "
+             "circuit`: the same sequences rendered by the independent circuit generator (one draw), `train`: "
              "every 4th row of the training split. Occupancy: sum of the occupancy probabilities / voxels the "
              "undegraded events occupy. Count head: mean `mu` / mean undegraded count on those voxels. Ratios: "
              "events / undegraded events. `benchmarks/restore_count_head.py`.", "",
@@ -101,8 +102,18 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    rows = [measure(name, split, 1 if split == "test" else 4)
-            for name in ("restore_image", "restore_events") for split in ("test", "train")]
+    import tempfile
+
+    from rdnet.config import load_params
+    from rdnet.study.data import sequences
+    from rdnet.study.independent import circuit_pairs
+    params = load_params(ROOT / "params.yaml")
+    with tempfile.TemporaryDirectory() as tmp:
+        circuit, _ = circuit_pairs(params, sequences(ROOT / "data" / "events", "test"), Path(tmp), 0)
+        splits = (("test", ROOT / "data" / "pairs" / "test.h5", 1), ("test, circuit", circuit, 1),
+                  ("train", ROOT / "data" / "pairs" / "train.h5", 4))
+        rows = [measure(name, split, pairs, every)
+                for name in ("restore_image", "restore_events") for split, pairs, every in splits]
     write_results(args.results.with_suffix(".json"), {"rows": rows}, lambda r: markdown(r["rows"]))
     return 0
 
