@@ -270,8 +270,8 @@ def test_the_train_stage_refuses_events_beside_a_network(tmp_path):
 
 
 def test_frames_beyond_2_52_us_are_refused_before_the_simulator(capsys, tmp_path):
-    """Frames at 2^53 us once crashed `simulate` (double free: float64 frame times collided and
-    the pixel kernel wrote out of bounds); 2^52 is the bound, epoch times (~1.8e15) pass."""
+    """Frames at 2^53 us once crashed `simulate` (double free in a compiled kernel; the exact
+    place was not located); 2^52 is the bound, epoch times (~1.8e15) pass."""
     import numpy as np
     from rdnet.events import Frames, Recording
     from rdnet.events.io import save

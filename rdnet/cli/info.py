@@ -31,8 +31,6 @@ def add_sensor_size_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--height", type=int, default=None, help="sensor height (text files without a size header)")
 
 
-
-
 def sensor_size_of(args) -> tuple[int, int] | None:
     from rdnet.events.core import MAX_SENSOR_SIDE
     if (args.width is None) != (args.height is None):

@@ -98,6 +98,7 @@ def run(args) -> int:
     from rdnet.events.core import Events
     from rdnet.events.io import H5RecordingWriter
     from rdnet.events.io._common import refuse_input_as_output
+    from rdnet.events.io.dispatch import FORMATS
     from rdnet.events.io.hdf5 import BackgroundWrites
     from rdnet.sim.pair import frame_chunks, prefetch, stream_events
     from rdnet.sim.randomize import degradation_level, draw_degrade
@@ -113,7 +114,7 @@ def run(args) -> int:
     interp = None if args.no_interpolate else interp_cfg
     if args.chunk < 1:
         raise ValidationError("--chunk", f"must be >= 1, got {args.chunk}")
-    if args.output.suffix.lower() not in (".h5", ".hdf5"):          # what the readers take
+    if FORMATS.get(args.output.suffix.lower()) != "hdf5":            # the suffixes the readers take
         raise FormatError(args.output, None, "output must be an HDF5 recording (.h5)")
     refuse_input_as_output(args.output, args.input)
     rng = np.random.default_rng(args.seed)

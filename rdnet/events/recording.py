@@ -10,8 +10,9 @@ from rdnet.events.core import Events
 
 
 #: frame timestamps must stay below this in magnitude (2^52 us, the year 2112 as Unix time in
-#: microseconds): the simulator interpolates frame times in float64, whose spacing reaches 1 us
-#: there; at 2^53 upsampled times collided and the pixel kernel wrote out of bounds
+#: microseconds). Frames at 2^53 us crashed the simulator (memory corruption in a compiled
+#: kernel; where exactly was not located: the interpolated times are int64), frames at 2^52
+#: and at today's Unix times simulate the same events as near 0. A guard, not the cure.
 MAX_FRAME_TIME_US = 2 ** 52
 
 
@@ -59,8 +60,7 @@ class Frames:
             raise ValidationError("frames/exposure_us", f"expected {n} exposures, got shape {exp.shape}")
         if t.size and int(np.abs(t).max()) >= MAX_FRAME_TIME_US:
             raise ValidationError("frames/t", f"timestamp {int(t[np.argmax(np.abs(t))])} us is beyond +-2^52 us "
-                                  "(year 2112 as Unix time): the simulator's float64 frame times would lose "
-                                  "microseconds")
+                                  "(year 2112 as Unix time), which the simulator does not support")
         if n > 1 and np.any(np.diff(t) <= 0):
             i = int(np.flatnonzero(np.diff(t) <= 0)[0])
             raise ValidationError("frames/t", f"timestamps not increasing at frame {i + 1} ({int(t[i])} -> {int(t[i + 1])} us)")
