@@ -267,12 +267,51 @@ def positive(key: str, value: float, *, allow_zero: bool = True) -> None:
 ONE_HOUR_US = 3.6e9
 
 
+#: the bound of event rates in Hz: a pixel cannot fire faster than about 1 MHz (its reset and
+#: readout take about a microsecond), and the timestamps count whole microseconds
+MAX_RATE_HZ = 1e6
+
+#: the bound of thread and process counts: more than the cores of any machine (100000
+#: threads exhausted the memory before the work began)
+MAX_THREADS = 256
+
+#: the bound of seeds: 32 bits, which every generator the code seeds takes (numpy's take any
+#: size; ``torch.manual_seed`` gave a traceback beyond 2^64)
+MAX_SEED = 2 ** 32 - 1
+
+
 def at_most(key: str, value: float, most: float) -> None:
     """Range check helper for ``__post_init__``: ``value`` <= ``most`` (durations:
     :data:`ONE_HOUR_US`, named as an hour in the message)."""
     if value > most:
         unit = " us (an hour)" if most == ONE_HOUR_US else ""
         raise ConfigError(key, f"must be at most {most:g}{unit}, got {value:g}")
+
+
+def at_least(key: str, value: float, least: float) -> None:
+    """Range check helper for ``__post_init__``: ``value`` >= ``least`` (a lower bound above 0,
+    for keys where a tiny value is not "off" but runs without end)."""
+    if value < least:
+        raise ConfigError(key, f"must be at least {least:g}, got {value:g}")
+
+
+def check_bounds(section: str, cfg, upper: Mapping[str, float], lower: Mapping[str, float] | None = None) -> None:
+    """Range check helper for ``__post_init__``: each key of ``upper`` of ``cfg`` is at most its
+    bound (:func:`at_most`), each key of ``lower`` at least its bound (:func:`at_least`); the
+    message names ``section.key``. An unset optional key (None) is skipped, and every number
+    of a list or tuple is checked (nested ranges too)."""
+    for bounds, check in ((upper, at_most), (lower or {}, at_least)):
+        for key, bound in bounds.items():
+            for value in _numbers(getattr(cfg, key)):
+                check(f"{section}.{key}", value, bound)
+
+
+def _numbers(value) -> Iterable:
+    if isinstance(value, (list, tuple)):
+        for v in value:
+            yield from _numbers(v)
+    elif value is not None:
+        yield value
 
 
 # --- command-line access (``--params`` / ``--set``), shared by the CLI and entry points --

@@ -77,8 +77,8 @@ def test_latency_is_bounded_on_the_command_line_and_in_a_calibration(capsys, tmp
     assert rc == 2 and "--set restore.latency_us=1.0e+30: parameter 'restore.latency_us': must be at most" in err
     report = tmp_path / "cal.json"
     report.write_text(json.dumps({"fitted_config": {"sensor": {}, "degrade": {"latency_us": 1e30}}}))
-    rc, _, err = _run(capsys, base + ["--calibration", str(report)])
-    assert rc == 2 and "cal.json (its fitted latency_us, --calibration)" in _one_line(err)
+    rc, _, err = _run(capsys, base + ["--calibration", str(report)])   # the report's degrade section is bounded too
+    assert rc == 2 and "cal.json: parameter 'degrade.latency_us': must be at most" in _one_line(err)
     report.write_text(json.dumps({"fitted_config": {"sensor": {}, "degrade": {"latency_us": "abc"}}}))
     rc, _, err = _run(capsys, base + ["--calibration", str(report)])
     assert rc == 2 and "cal.json: parameter 'fitted_config.degrade.latency_us': expected a number" in _one_line(err)
@@ -359,3 +359,267 @@ def test_frames_only_to_npy_and_simulate_to_hdf_are_refused(capsys, tmp_path, ma
     rc, _, err = _run(capsys, ["simulate", str(tmp_path / "rec.h5"), str(tmp_path / "o.hdf"), "--no-progress"])
     assert rc == 2 and "o.hdf: output must be an HDF5 recording (.h5)" in _one_line(err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["frames.h5", "rec.h5"]
+
+
+def _number_keys():
+    """``(section, data, key)`` for every numeric key of every params section (the number
+    fields of the dataclasses of rdnet.config.SECTIONS, lists of numbers and the keys of a
+    nested dataclass such as ablation.filters): ``data`` sets the key to a huge finite value."""
+    import dataclasses
+    import types
+    import typing
+    from rdnet.config import SECTIONS, section_class
+
+    def number_type(tp):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if typing.get_origin(tp) in (typing.Union, types.UnionType):
+            return len(args) == 1 and number_type(args[0])
+        if typing.get_origin(tp) in (tuple, list):
+            return bool(args) and args[0] in (int, float)
+        return tp in (int, float)
+
+    def numbers(v):
+        if isinstance(v, (list, tuple)):
+            return bool(v) and all(numbers(x) for x in v)
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+    def huge(cls, f, tp):
+        whole = int in (tp, *typing.get_args(tp)) or any(int in typing.get_args(a) for a in typing.get_args(tp))
+        big = 10 ** 18 if whole else 1e300
+        default = f.default if f.default is not dataclasses.MISSING else None
+        if f.name in ("train_scale", "test_scale"):          # a range disjoint from the other split's
+            return [2.0, big]
+        if isinstance(default, tuple) or typing.get_origin(tp) in (tuple, list) or any(
+                typing.get_origin(a) in (tuple, list) for a in typing.get_args(tp)):
+            return [1, big]
+        return big
+
+    out = []
+
+    def walk(cls, prefix, wrap):
+        hints = typing.get_type_hints(cls)
+        for f in dataclasses.fields(cls):
+            tp, default = hints[f.name], f.default
+            if dataclasses.is_dataclass(default):
+                walk(type(default), f"{prefix}.{f.name}", lambda d, name=f.name, w=wrap: w({name: d}))
+            elif number_type(tp) or (default is not dataclasses.MISSING and default is not None and numbers(default)):
+                data = {f.name: huge(cls, f, tp)}
+                if (prefix, f.name) == ("blur", "min_frames"):
+                    data["max_frames"] = data["min_frames"]
+                out.append((prefix.split(".")[0], wrap(data), f"{prefix}.{f.name}"))
+
+    for name in SECTIONS:
+        walk(section_class(name), name, lambda d: d)
+    return out
+
+
+@pytest.mark.parametrize("name,data,key", _number_keys(), ids=[k for _, _, k in _number_keys()])
+def test_every_numeric_key_refuses_a_huge_finite_value(name, data, key):
+    """Huge finite values hung, crashed or exhausted the memory (session 26: shot_noise_hz=1e300,
+    refine_steps=1e9, batch_size=1e9, ...): every numeric key of every section has a bound, and
+    the error names the key."""
+    from rdnet.config import from_dict, section_class
+    with pytest.raises(ConfigError) as e:
+        from_dict(section_class(name), data, name)
+    assert e.value.key == key
+
+
+def _bounds():
+    """``(section, key, bound)`` of every bounds table of the sections."""
+    from rdnet.calib import settings as calibrate
+    from rdnet.deblur import config as deblur
+    from rdnet.events import voxel_config as voxel
+    from rdnet.restore import settings as restore
+    from rdnet.sim import blur, interpolate, scenes, settings as sim
+    from rdnet.study import config as study, rows
+    from rdnet.train import config as train
+    tables = [("sensor", sim.SENSOR_UPPER_BOUNDS), ("sensor", sim.SENSOR_LOWER_BOUNDS),
+              ("degrade", sim.DEGRADE_UPPER_BOUNDS), ("degrade", sim.DEGRADE_LOWER_BOUNDS),
+              ("randomize", sim.RANDOMIZE_UPPER_BOUNDS), ("interpolate", interpolate.UPPER_BOUNDS),
+              ("interpolate", interpolate.LOWER_BOUNDS), ("scenes", scenes.UPPER_BOUNDS), ("blur", blur.UPPER_BOUNDS),
+              ("voxel", voxel.UPPER_BOUNDS), ("train", train.TRAIN_UPPER_BOUNDS), ("model", train.MODEL_UPPER_BOUNDS),
+              ("ablation", rows.ABLATION_UPPER_BOUNDS), ("study", study.UPPER_BOUNDS),
+              ("calibrate", calibrate.UPPER_BOUNDS), ("deblur", deblur.UPPER_BOUNDS),
+              ("restore", restore.RESTORE_UPPER_BOUNDS), ("ednccn", restore.EDNCCN_UPPER_BOUNDS)]
+    return [(name, key, bound) for name, table in tables for key, bound in table.items()]
+
+
+@pytest.mark.parametrize("name,key,bound", _bounds(), ids=[f"{n}.{k}" for n, k, _ in _bounds()])
+def test_a_value_at_its_bound_is_taken(name, key, bound):
+    """The bounds refuse no sensible value: each key at its bound validates (params.yaml and the
+    paper profile, far inside them, validate in tests/study/test_profiles.py)."""
+    import dataclasses
+    from rdnet.config import from_dict, section_class
+    cls = section_class(name)
+    default = {f.name: f.default for f in dataclasses.fields(cls)}[key]
+    value = bound if isinstance(default, float) else int(bound) if float(bound).is_integer() else bound
+    if key in ("train_scale", "test_scale"):
+        value = [value, value]
+    elif isinstance(default, tuple) or key in ("enc_depths", "dec_depths"):
+        value = [value]
+    data = {key: value, **({"max_frames": value} if (name, key) == ("blur", "min_frames") else {})}
+    from_dict(cls, data, name)
+
+
+@pytest.mark.parametrize("item", ["sensor.threshold_on=1e-300", "sensor.threshold_off=1e-4",
+                                  "degrade.onoff_ratio=1e-300", "interpolate.max_log_step=1e-300"])
+def test_tiny_thresholds_and_ratios_have_a_lower_bound(item):
+    """A tiny contrast threshold (or an ON/OFF ratio whose root makes one) ran until killed."""
+    key = item.partition("=")[0]
+    with pytest.raises(ConfigError, match=rf"'{key}': must be at least \d"):
+        load_params(None, [item])
+
+
+def test_stcf_k_is_bounded_by_its_neighbourhood_and_scaled_degradations_are_capped():
+    """STCF with more supporters than the pixels around an event dropped every event; a
+    randomized or stressed degradation at a bound times a scale stays at the bound."""
+    from rdnet.config import from_dict
+    from rdnet.restore.settings import RestoreConfig
+    from rdnet.sim.randomize import scale_degrade
+    from rdnet.sim.settings import DegradeConfig
+    from rdnet.study.rows import AblationConfig, FilterConfig
+    RestoreConfig(stcf_k=8, stcf_radius=1)
+    FilterConfig(stcf_k=24, stcf_radius=2)
+    with pytest.raises(ConfigError, match=r"'restore.stcf_k': must be at most 8 \(the pixels within radius 1"):
+        RestoreConfig(stcf_k=9, stcf_radius=1)
+    with pytest.raises(ConfigError, match=r"'ablation.filters.stcf_k': must be at most 24 "):
+        from_dict(AblationConfig, {"filters": {"stcf_k": 25, "stcf_radius": 2}}, "ablation")
+    with pytest.raises(ConfigError, match=r"'ablation.rows.\*.paper_psnr': must be at most 100"):
+        AblationConfig(rows={"r": {"method": "blurry", "paper_psnr": 1e300}}).row("r")
+    deg = scale_degrade(DegradeConfig(shot_noise_hz=1e6, onoff_ratio=0.01, latency_us=3e9),
+                        {"shot_noise_hz": 1.5, "onoff_ratio": 1.5, "latency_us": 3.0})
+    assert (deg.shot_noise_hz, deg.onoff_ratio, deg.latency_us) == (1e6, 0.01, 3.6e9)
+
+
+#: a sample of the bounded keys through the commands, one section or more each: the
+#: session-26 reproductions (runs until killed, tracebacks, killed for memory, 0 events, a
+#: message that blamed the frames) and one key of every other section
+CLI_BOUNDS = [
+    ("simulate", "degrade.shot_noise_hz=1e300"), ("simulate", "degrade.leak_hz=1e300"),
+    ("simulate", "degrade.onoff_ratio=1e300"), ("simulate", "sensor.threshold_on=1e-300"),
+    ("simulate", "degrade.latency_us=1e30"), ("simulate", "degrade.jitter_us=1e30"),
+    ("simulate", "degrade.hot_pixel_hz=1e300"), ("simulate", "interpolate.select_sigma_px=1e300"),
+    ("simulate", "interpolate.log_eps=1e300"), ("simulate", "degrade.refractory_us=1e19"),
+    ("simulate", "sensor.log_eps=1e308"), ("simulate", "randomize.test_scale=[1.0, 1.0e+300]"),
+    ("simulate", "scenes.n_frames=1e12"), ("simulate", "blur.max_frames=1e9"), ("simulate", "voxel.bins=1e9"),
+    ("simulate", "study.parallel=100000"), ("simulate", "ablation.batch_size=1e9"),
+    ("restore", "restore.gef_bins=100000"), ("restore", "restore.gef_radius=1e6"),
+    ("restore", "restore.baf_dt_us=1e19"), ("restore", "restore.stcf_tau_us=1e19"),
+    ("restore", "restore.esr_interval_us=1e19"), ("restore", "ednccn.radius=1e6"),
+    ("calibrate", "calibrate.refine_steps=1e9"), ("calibrate", "calibrate.pixel_stride=1e9"),
+    ("calibrate", "calibrate.intensity_bins=1e9"), ("calibrate", "calibrate.search_points=1e9"),
+    ("deblur", "deblur.threads=100000"), ("deblur", "model.width=1e9"),
+    ("train", "train.lr=1e300"), ("train", "train.threads=100000"), ("train", "train.batch_size=1e9")]
+
+
+@pytest.mark.parametrize("command,item", CLI_BOUNDS, ids=[i for _, i in CLI_BOUNDS])
+def test_a_huge_set_value_is_one_line_before_the_work(capsys, tmp_path, monkeypatch, make_recording, command, item):
+    from rdnet.events.io import save
+    from rdnet.train.synthetic import write_synthetic_pairs
+    monkeypatch.chdir(tmp_path)                      # built-in defaults, not the checkout's params.yaml
+    save(tmp_path / "rec.h5", make_recording(n_events=200, n_frames=4))
+    write_synthetic_pairs(tmp_path / "pairs.h5", n=2, bins=3, height=16, width=16)
+    argv = {"simulate": ["simulate", "rec.h5", "out.h5"],
+            "restore": ["restore", "rec.h5", "out.h5", "--method", "baf"],
+            "calibrate": ["calibrate", "rec.h5", "--out", "out", "--no-plots"],
+            "deblur": ["deblur", "rec.h5", "out"],
+            "train": ["train", "--task", "deblur", "--train", "pairs.h5", "--out", "out"]}[command]
+    rc, _, err = _run(capsys, argv + ["--set", item, "--no-progress"])
+    key = item.partition("=")[0]
+    assert rc == 2 and f"--set {item}: parameter '{key}': must be at " in _one_line(err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pairs.h5", "rec.h5"]
+
+
+def test_the_training_entry_point_refuses_a_huge_learning_rate(tmp_path):
+    """`python -m rdnet.train.run --set train.lr=1e300` gave a traceback (float overflow)."""
+    import subprocess
+    import sys
+    from rdnet.train.synthetic import write_synthetic_pairs
+    write_synthetic_pairs(tmp_path / "pairs.h5", n=2, bins=3, height=16, width=16)
+    r = subprocess.run([sys.executable, "-m", "rdnet.train.run", "--task", "deblur", "--train", "pairs.h5",
+                        "--out", "out", "--set", "train.lr=1e300", "--no-progress"],
+                       capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert r.returncode == 2 and "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert "--set train.lr=1e300: parameter 'train.lr': must be at most 1, got 1e+300" in r.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_restore_refuses_events_spanning_too_many_windows(capsys, tmp_path, monkeypatch):
+    """Events spanning about 2^63 us asked for one window edge per 50 ms at once (an
+    ArrayMemoryError traceback); every window is a restorer call, so a span of more than
+    MAX_WINDOWS windows (a timestamp jump) is one line naming the file and the span."""
+    import numpy as np
+    from rdnet.events import EVENT_DTYPE, Events, Recording
+    from rdnet.events.io import save
+    from rdnet.restore import stream
+    arr = np.zeros(4, EVENT_DTYPE)
+    arr["t"] = [-2 ** 62, -2 ** 62 + 10, 2 ** 62 - 10, 2 ** 62]
+    arr["x"], arr["p"] = [1, 2, 3, 4], [1, 0, 1, 0]
+    save(tmp_path / "span.h5", Recording(8, 8, events=Events(arr, 8, 8)))
+    rc, _, err = _run(capsys, ["restore", str(tmp_path / "span.h5"), str(tmp_path / "o.h5"), "--method", "baf",
+                               "--no-progress"])
+    assert rc == 2 and (f"span.h5: field 't': events from {-2 ** 62} to {2 ** 62} us span 1.84e+14 windows of "
+                        "50000 us, more than 10,000,000") in _one_line(err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["span.h5"]
+    monkeypatch.setattr(stream, "MAX_WINDOWS", 5)          # the bound itself: 5 windows pass, 6 do not
+    ev = Events(np.array([(0, 1, 1, 1), (249_999, 2, 2, 0)], EVENT_DTYPE), 8, 8)
+    assert [w[:2] for w in stream.windows(iter([ev]), 50_000)] == [(k * 50_000, (k + 1) * 50_000) for k in range(5)]
+    with pytest.raises(FormatError, match="span 6 windows of 50000 us, more than 5:"):
+        list(stream.windows(iter([ev[:1], Events(np.array([(250_000, 2, 2, 0)], EVENT_DTYPE), 8, 8)]), 50_000))
+
+
+def _frame_list(folder, images):
+    """events.txt (with a size header) and an images.txt listing ``images`` (written with OpenCV)."""
+    import cv2
+    (folder / "events.txt").write_text("16 12\n0.001 1 1 1\n0.002 2 2 0\n")
+    rows = []
+    for i, img in enumerate(images):
+        name = f"f{i}.{'tiff' if img.dtype.kind == 'f' else 'png'}"
+        cv2.imwrite(str(folder / name), img)
+        rows.append(f"{0.001 * i:.6f} {name}")
+    (folder / "images.txt").write_text("\n".join(rows) + "\n")
+
+
+def test_frame_lists_with_mixed_bit_depths_or_float_values_above_one_are_refused(capsys, tmp_path):
+    """An images.txt of 8- and 16-bit images was scaled per image (the frame folder reader refused
+    it since session 26); a float TIFF holding 255.0 was taken as linear intensity in [0, 1],
+    by both readers."""
+    import numpy as np
+    grey = np.full((12, 16), 100, np.uint8)
+    cases = [([grey, grey.astype(np.uint16) * 257], "f1.png: image is uint16 (16-bit), the first is uint8 (8-bit): "
+                                                     "one bit depth per frame list (images.txt)"),
+             ([np.full((12, 16), 255.0, np.float32)] * 2,
+              "f0.tiff: float32 image holds values outside [0, 1] (e.g. 255): float frames are linear intensity")]
+    for i, (images, expected) in enumerate(cases):
+        folder = tmp_path / f"list{i}"
+        folder.mkdir()
+        _frame_list(folder, images)
+        rc, _, err = _run(capsys, ["convert", str(folder / "events.txt"), str(folder / "o.h5")])
+        assert rc == 2 and expected in _one_line(err)
+        assert not (folder / "o.h5").exists()
+    import cv2
+    (tmp_path / "frames").mkdir()
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / "frames" / f"{i}.tiff"), np.full((12, 16), 0.5 if i < 2 else 255.0, np.float32))
+    rc, _, err = _run(capsys, ["simulate", str(tmp_path / "frames"), str(tmp_path / "o.h5"), "--no-progress"])
+    assert rc == 2 and "2.tiff: float32 image holds values outside [0, 1] (e.g. 255)" in _one_line(err)
+    assert not (tmp_path / "o.h5").exists()
+
+
+def test_a_root_attribute_the_writer_cannot_store_names_the_file(capsys, tmp_path, make_recording):
+    """An HDF5 root attribute of strings (read back as a list) or of a complex number stopped
+    `convert` with a message that named neither file."""
+    import h5py
+    import numpy as np
+    from rdnet.events.io import save
+    save(tmp_path / "rec.h5", make_recording(n_events=50))
+    with h5py.File(tmp_path / "rec.h5", "r+") as f:
+        f.attrs["tags"] = np.array([b"a", b"bc"])
+    rc, _, err = _run(capsys, ["convert", str(tmp_path / "rec.h5"), str(tmp_path / "o.h5")])
+    assert rc == 2 and f"{tmp_path / 'o.h5'}: field 'attrs/tags': unsupported attribute type list" in _one_line(err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.h5"]
+    from rdnet.events.io.hdf5 import H5RecordingWriter
+    with pytest.raises(FormatError, match=r"x\.h5: field 'attrs/s': cannot write \(ValueError: VLEN strings"):
+        with H5RecordingWriter(tmp_path / "x.h5", 4, 4) as w:
+            w.set_attr("s", "a\x00b")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.h5"]

@@ -5,15 +5,45 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Tuple
 
-from rdnet.config import ONE_HOUR_US, at_most, positive
+from rdnet.config import MAX_THREADS, ONE_HOUR_US, check_bounds, positive
 from rdnet.errors import ConfigError
+from rdnet.events.core import MAX_SENSOR_SIDE
+from rdnet.sim.settings import SENSOR_UPPER_BOUNDS
 
 
-#: upper bounds of the ``calibrate`` keys whose huge values overflowed the int64 microsecond
-#: arithmetic (times: an hour) or exhausted the machine (threads, seeds: memory and threads
-#: grow with them); far above any useful setting
-UPPER_BOUNDS = {"time_bin_us": ONE_HOUR_US, "max_lag_us": ONE_HOUR_US, "warmup_us": ONE_HOUR_US, "threads": 256,
-                "seeds": 100}
+#: upper bounds of the ``calibrate`` keys (``search_seeds`` is at most ``seeds``), far above any
+#: useful setting
+UPPER_BOUNDS = {
+    # durations in int64 microseconds (huge values overflowed)
+    "time_bin_us": ONE_HOUR_US, "max_lag_us": ONE_HOUR_US, "warmup_us": ONE_HOUR_US,
+    # threads and seeds: threads and memory grow with them
+    "threads": MAX_THREADS, "seeds": 100,
+    # time segments, each simulated and scored on its own: a minute in 1000 segments leaves
+    # 60 ms, a few frames, to each
+    "segments": 1000,
+    # pixels: a stride or a rate-map cell wider than the largest sensor side is one pixel or
+    # one cell (a stride of 1e9 gave a traceback)
+    "pixel_stride": MAX_SENSOR_SIDE, "grid_px": MAX_SENSOR_SIDE,
+    # log-intensity quantile bins (1e9 was killed for memory): beyond a few hundred they hold
+    # a handful of pixels each
+    "intensity_bins": 1000,
+    # a log-intensity range, bounded as a contrast threshold is (``sensor.threshold_on``)
+    "static_contrast": SENSOR_UPPER_BOUNDS["threshold_on"],
+    # seed standard deviations: beyond 1000 no effect is ever named (as good as off)
+    "significance": 1000.0, "signature_significance": 1000.0,
+    # shares of the fit discrepancy after the basic refit: no effect removes more than all of it
+    "min_relative_gain": 1.0, "screen_gain": 1.0,
+    # effects: far more than the vocabulary holds (rdnet.calib.effects.EFFECTS, 10)
+    "max_effects": 100, "max_fitted": 100,
+    # each screen point is a simulation of the search sample (1e9 was killed for memory)
+    "search_points": 100,
+    # each golden-section step shrinks the bracket by 0.618: 75 steps reach float64's
+    # resolution (1e9 ran until killed)
+    "refine_steps": 100,
+    # pixel-frame budgets: at ~1e7 pixel-frames a second, 1e12 is more than a day
+    "max_sim_steps": 1e12, "search_max_sim_steps": 1e12,
+    # as ``interpolate.max_upsample`` (rdnet.sim.interpolate.UPPER_BOUNDS: frames in memory)
+    "max_upsample": 1024}
 
 
 @dataclass(frozen=True)
@@ -117,8 +147,7 @@ class CalibrateConfig:
                     "refine_steps", "max_lag_us", "max_sim_steps", "search_max_sim_steps", "max_upsample",
                     "threads", "warmup_us"):
             positive(f"calibrate.{key}", getattr(self, key))
-        for key, most in UPPER_BOUNDS.items():     # beyond these a run overflows or exhausts the machine
-            at_most(f"calibrate.{key}", getattr(self, key), most)
+        check_bounds("calibrate", self, UPPER_BOUNDS)     # beyond these a run overflows or exhausts the machine
         object.__setattr__(self, "candidates", tuple(self.candidates))
         object.__setattr__(self, "interpolation", tuple(self.interpolation))
         from rdnet.sim.interpolate import METHODS

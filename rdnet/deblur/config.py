@@ -4,8 +4,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, Optional
 
-from rdnet.config import positive
+from rdnet.config import MAX_THREADS, check_bounds, positive
 from rdnet.errors import ConfigError
+
+#: bounds of the ``deblur`` keys (checked by :func:`rdnet.config.check_bounds`)
+UPPER_BOUNDS = {
+    # frames per network call, in memory at once (as ``train.batch_size``)
+    "batch_size": 4096,
+    "threads": MAX_THREADS,
+    # more frames than a day at 100 fps (8.6e6)
+    "max_frames": 10_000_000,
+    # frames in one figure
+    "montage_frames": 100}
 
 
 @dataclass(frozen=True)
@@ -46,3 +56,4 @@ class DeblurConfig:
             raise ConfigError("deblur.event_times", f"must be input or bins, got {self.event_times!r}")
         if self.device not in ("cpu", "cuda", "auto"):
             raise ConfigError("deblur.device", f"must be cpu, cuda or auto, got {self.device!r}")
+        check_bounds("deblur", self, UPPER_BOUNDS)

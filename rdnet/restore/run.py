@@ -105,7 +105,7 @@ def _windows_after_shift(chunks, latency_us: float, early: list, window_us: int,
     try:
         yield from windows(shifted(chunks, latency_us, early), window_us, path=recording)
     except FormatError as e:
-        if sum(early):
+        if sum(early) and e.field == "events":
             raise ConfigError("restore.latency_us", f"{int(round(latency_us))} us is longer than the "
                               f"{sum(early)} events of {recording} span: none is left") from None
         raise e

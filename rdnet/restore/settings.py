@@ -6,12 +6,42 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from rdnet.config import ONE_HOUR_US, at_most, positive
+from rdnet.config import MAX_RATE_HZ, MAX_SEED, MAX_THREADS, ONE_HOUR_US, check_bounds, positive
 from rdnet.errors import ConfigError
 
 METHODS = ("rdnet", "baf", "stcf", "gef", "raw", "ednccn")
 #: how a learned restorer's voxel counts become events (``RestoreConfig.event_times``)
 EVENT_TIMES = ("input", "bins")
+
+#: bounds of the ``restore`` keys (checked by :func:`rdnet.config.check_bounds`; the filter
+#: keys are shared with ``ablation.filters``, and ``stcf_k`` is bounded by ``stcf_radius``:
+#: :func:`check_stcf_k`)
+RESTORE_UPPER_BOUNDS = {
+    # durations in int64 microseconds (1e19 overflowed the timestamp arithmetic)
+    "window_us": ONE_HOUR_US, "baf_dt_us": ONE_HOUR_US, "stcf_tau_us": ONE_HOUR_US,
+    "esr_interval_us": ONE_HOUR_US, "latency_us": ONE_HOUR_US,
+    # events held in memory at a time (13 bytes each: 1.3 GB at 1e8)
+    "chunk_events": 100_000_000,
+    # neighbourhood radii in pixels: STCF reads (2r+1)^2 pixels per event (4,225 at 32), GEF's
+    # box sums pad every time bin by r on each side (1e6 asked for a 29 TiB array)
+    "stcf_radius": 32, "gef_radius": 32,
+    # the guided filter's regulariser for a [0, 1] guide: beyond ~1 it is a box mean already
+    "gef_eps": 100.0,
+    # time bins of a window's voxel grid, about ten float64 copies of bins x H x W in the guided
+    # filter (a 50 ms window in 0.5 ms bins; 100000 ran until killed)
+    "gef_bins": 100,
+    # raw events scored at most: a day at 10 M events/s is 8.6e11 (the default 1e9: no cap)
+    "score_max_events": 1e12,
+    # a pixel a million times its neighbours' median count; a rate as the simulator's
+    "hot_pixel_factor": 1e6, "hot_pixel_min_hz": MAX_RATE_HZ}
+
+
+def check_stcf_k(key: str, k: int, radius: int) -> None:
+    """STCF keeps an event with at least ``k`` supporting pixels among the ``(2 radius + 1)^2 -
+    1`` around it (:mod:`rdnet.baselines.stcf`): a larger ``k`` drops every event."""
+    most = (2 * radius + 1) ** 2 - 1
+    if k > most:
+        raise ConfigError(key, f"must be at most {most} (the pixels within radius {radius} of an event), got {k}")
 
 
 @dataclass(frozen=True)
@@ -85,7 +115,8 @@ class RestoreConfig:
                                                          f"its neighbours' median), got {self.hot_pixel_factor}")
         positive("restore.hot_pixel_min_hz", self.hot_pixel_min_hz)
         positive("restore.latency_us", self.latency_us)
-        at_most("restore.latency_us", self.latency_us, ONE_HOUR_US)   # within the int64 us timestamps
+        check_bounds("restore", self, RESTORE_UPPER_BOUNDS)
+        check_stcf_k("restore.stcf_k", self.stcf_k, self.stcf_radius)
         if self.method not in METHODS:
             raise ConfigError("restore.method", f"must be one of {list(METHODS)}, got {self.method!r}")
         if self.event_times not in EVENT_TIMES:
@@ -96,6 +127,25 @@ class RestoreConfig:
             raise ConfigError("restore.device", f"must be cpu, cuda or auto, got {self.device!r}")
         if self.frame_compression not in ("none", "gzip", "lzf"):
             raise ConfigError("restore.frame_compression", f"must be none, gzip or lzf, got {self.frame_compression!r}")
+
+
+#: bounds of the ``ednccn`` keys (checked by :func:`rdnet.config.check_bounds`)
+EDNCCN_UPPER_BOUNDS = {
+    # every event carries a (2 depth, 2r+1, 2r+1) float32 patch, in memory for all training
+    # events (EDnCNN: 7x7, r = 3; at r = 8 and depth 8 the default 400,000 events take 7.4 GB)
+    "radius": 8, "depth": 8,
+    "tau_us": ONE_HOUR_US,
+    # channels and units per layer (parameters grow with the product of neighbours)
+    "conv_channels": 4096, "hidden": 4096,
+    # training events with their patches in memory (784 bytes each at the defaults: 7.8 GB)
+    "max_train_events": 10_000_000,
+    # passes over the training events, events per step (both time)
+    "epochs": 1000, "batch_size": 65_536,
+    # Adam's step size, as ``train.lr``
+    "lr": 1.0,
+    # held-out sequences: as many as ``scenes.n_train`` may hold
+    "val_sequences": 10_000,
+    "seed": MAX_SEED, "threads": MAX_THREADS}
 
 
 @dataclass(frozen=True)
@@ -127,6 +177,8 @@ class EdnccnConfig:
             positive(f"ednccn.{key}", getattr(self, key), allow_zero=False)
         positive("ednccn.lr", self.lr, allow_zero=False)
         positive("ednccn.threads", self.threads)
+        positive("ednccn.seed", self.seed)
+        check_bounds("ednccn", self, EDNCCN_UPPER_BOUNDS)
         if any(int(c) < 1 for c in self.conv_channels) or any(int(h) < 1 for h in self.hidden):
             raise ConfigError("ednccn.hidden", "conv_channels and hidden widths must be >= 1")
         if 2 * self.radius + 1 - 2 * len(self.conv_channels) < 1:

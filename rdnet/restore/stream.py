@@ -5,7 +5,9 @@ The chunks come from :func:`rdnet.events.io.stream.open_events` (memory stays bo
 large Prophesee and HDF5 files). The windows tile the
 recording from its first event: [t_first + k W, t_first + (k + 1) W), k = 0, 1, ...;
 every window up to the one holding the last event is yielded (empty ones included),
-so a stateful restorer sees the stream in order.
+so a stateful restorer sees the stream in order. A recording whose events span more than
+:data:`MAX_WINDOWS` windows is refused (a timestamp jump: every window is a restorer call,
+and events spanning 2^63 us once asked for a 1.3 PiB array of window edges).
 """
 from __future__ import annotations
 
@@ -17,21 +19,28 @@ import numpy as np
 from rdnet.errors import FormatError
 from rdnet.events.core import Events, concatenate
 
+#: the most windows a recording is cut into: 5.8 days of events at the default 50 ms
+#: (``restore.window_us``); an event recording spans minutes to hours
+MAX_WINDOWS = 10_000_000
+
 
 def windows(chunks: Iterator[Events], window_us: int, *, path: str | Path = "recording"
             ) -> Iterator[tuple[int, int, Events]]:
     """(t0, t1, events in [t0, t1)) for consecutive windows of ``window_us`` (module
     docstring). :class:`FormatError` naming ``path`` when there is no event at all."""
     buf: list[Events] = []
-    t0 = None
+    t0 = first = None
     W = int(window_us)
     for ch in chunks:
         if len(ch) == 0:
             continue
         if t0 is None:
-            t0 = int(ch.t[0])
+            t0 = first = int(ch.t[0])
         buf.append(ch)
         last = int(ch.t[-1])
+        if last - first >= MAX_WINDOWS * W:
+            raise FormatError(path, "t", f"events from {first} to {last} us span {(last - first) // W + 1:.3g} "
+                                         f"windows of {W} us, more than {MAX_WINDOWS:,}: a timestamp jump?")
         if last < t0 + W:
             continue
         ev = concatenate(buf) if len(buf) > 1 else buf[0]

@@ -31,6 +31,7 @@ from typing import Iterable, Mapping, Optional
 import h5py
 import numpy as np
 
+from rdnet.config import check_bounds
 from rdnet.errors import ConfigError, FormatError, ValidationError
 from rdnet.events.core import Events
 from rdnet.events.recording import Frames
@@ -50,6 +51,15 @@ _DTYPES = {**{k: np.float32 for k in POLARITY_KEYS}, "blurry": np.float32, "shar
            "voxel_degraded": np.float32, "sequence": np.int32, "t0_us": np.int64,
            "duration_us": np.int64, "level": np.float64}
 
+#: bounds of the ``blur`` keys (checked by :func:`rdnet.config.check_bounds`)
+UPPER_BOUNDS = {
+    # sharp frames averaged per blurry frame (GOPRO: 7-13), held in memory at once; every count
+    # in between is listed (1e9 would exhaust the memory); odd: the target is the middle frame
+    "min_frames": 1001, "max_frames": 1001,
+    # frames of a sequence at most (``scenes.n_frames``' bound): more skip or more samples
+    # than a sequence has frames
+    "gap_frames": 1_000_000, "max_samples": 1_000_000}
+
 
 @dataclass(frozen=True)
 class BlurConfig:
@@ -67,6 +77,7 @@ class BlurConfig:
             raise ConfigError("blur.min_frames", f"must be >= 1, got {self.min_frames}")
         if self.max_frames < self.min_frames:
             raise ConfigError("blur.max_frames", f"must be >= min_frames ({self.min_frames}), got {self.max_frames}")
+        check_bounds("blur", self, UPPER_BOUNDS)          # before odd_counts() lists the counts
         if not self.odd_counts():
             raise ConfigError("blur.max_frames", f"no odd frame count in [{self.min_frames}, {self.max_frames}] "
                               "(the sharp target is the middle frame)")

@@ -72,8 +72,9 @@ from typing import Iterator, Literal, Optional
 import cv2
 import numpy as np
 
-from rdnet.config import positive
+from rdnet.config import check_bounds, positive
 from rdnet.errors import ConfigError, ValidationError
+from rdnet.sim.settings import SENSOR_LOWER_BOUNDS, SENSOR_UPPER_BOUNDS
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +87,21 @@ _FB_ALPHA1, _FB_ALPHA2 = 0.01, 0.5
 METHODS = ("flow", "linear", "selected", "none")
 #: the methods that compute an optical flow
 FLOW_METHODS = ("flow", "selected")
+
+#: bounds of the ``interpolate`` keys (checked by :func:`rdnet.config.check_bounds`)
+UPPER_BOUNDS = {
+    # a log step is bounded as a contrast threshold is: beyond e^10 no [0, 1] frame steps
+    "max_log_step": SENSOR_UPPER_BOUNDS["threshold_on"],
+    # frames inserted per input pair (also at most the microseconds between them), each a whole
+    # frame in memory: 1024 frames of 1280x720 float32 are 3.8 GB
+    "max_upsample": 1024,
+    # the sensor's offset of the log, as ``sensor.log_eps`` (1e300 gave a traceback)
+    "log_eps": SENSOR_UPPER_BOUNDS["log_eps"],
+    # a Gaussian pooling wider than 256 px averages over most of any frame, so the choice is no
+    # longer local, and OpenCV's kernel grows as 6-8 sigma (1e300 gave a traceback)
+    "select_sigma_px": 256.0}
+#: a bound finer than the smallest contrast threshold only costs frames
+LOWER_BOUNDS = {"max_log_step": SENSOR_LOWER_BOUNDS["threshold_on"]}
 
 
 @dataclass(frozen=True)
@@ -147,6 +163,7 @@ class InterpolateConfig:
             positive("interpolate.log_eps", self.log_eps, allow_zero=False)
         if not 0.5 <= self.pixel_quantile <= 1.0:
             raise ConfigError("interpolate.pixel_quantile", f"must be in [0.5, 1], got {self.pixel_quantile}")
+        check_bounds("interpolate", self, UPPER_BOUNDS, LOWER_BOUNDS)
 
 
 @dataclass

@@ -12,7 +12,8 @@ degradation strengths from *disjoint* ranges around the ``degrade`` section:
 independently per key and per sequence. Only effects active in ``base`` are randomized
 (an effect that is off stays off), so ``dvc exp run -S degrade.threshold_sigma=0.05``
 changes both splits around the new value. ``hot_pixel_fraction`` and ``threshold_sigma``
-are capped at 1 (their valid range).
+are capped at 1 (their valid range), every other key at its bound
+(:data:`rdnet.sim.settings.DEGRADE_UPPER_BOUNDS`; ``onoff_ratio`` also below).
 """
 from __future__ import annotations
 
@@ -22,22 +23,25 @@ import math
 import numpy as np
 
 from rdnet.errors import ConfigError
-from rdnet.sim.settings import EFFECT_KEYS, DegradeConfig, RandomizeConfig
+from rdnet.sim.settings import (DEGRADE_LOWER_BOUNDS, DEGRADE_UPPER_BOUNDS, EFFECT_KEYS, DegradeConfig,
+                                RandomizeConfig)
 
 __all__ = ["RandomizeConfig", "draw_degrade", "draw_scale", "scale_degrade", "degradation_level", "degrade_factors"]
 
-_CAPPED = {"hot_pixel_fraction": 1.0, "threshold_sigma": 1.0}
+_CAPPED = {"hot_pixel_fraction": 1.0, "threshold_sigma": 1.0, **DEGRADE_UPPER_BOUNDS}
 
 
 def scale_degrade(base: DegradeConfig, factors: dict[str, float]) -> DegradeConfig:
-    """``base`` with each key of ``factors`` scaled (``onoff_ratio`` in log space)."""
+    """``base`` with each key of ``factors`` scaled (``onoff_ratio`` in log space), capped at
+    the key's valid range."""
     new = {}
     for k, m in factors.items():
         if k not in EFFECT_KEYS:
             raise ConfigError(f"degrade.{k}", "not a degradation effect")
         v = getattr(base, k)
         v = v ** m if k == "onoff_ratio" else v * m
-        new[k] = min(v, _CAPPED[k]) if k in _CAPPED else v
+        v = min(v, _CAPPED[k]) if k in _CAPPED else v
+        new[k] = max(v, DEGRADE_LOWER_BOUNDS[k]) if k in DEGRADE_LOWER_BOUNDS else v
     return dataclasses.replace(base, **new)
 
 

@@ -28,8 +28,9 @@ from typing import Iterator, Literal, Optional
 import cv2
 import numpy as np
 
-from rdnet.config import positive
+from rdnet.config import MAX_SEED, check_bounds, positive
 from rdnet.errors import ConfigError
+from rdnet.events.core import MAX_SENSOR_SIDE
 from rdnet.events.recording import Frames
 
 log = logging.getLogger(__name__)
@@ -44,6 +45,23 @@ TEXTURES = ("noise", "checkerboard", "stripes", "blobs")
 SPLITS = ("train", "test")
 
 _LUMA = np.array([0.299, 0.587, 0.114], np.float32)
+
+#: bounds of the ``scenes`` keys (checked by :func:`rdnet.config.check_bounds`; ``fps_hz``,
+#: ``zoom``, the fractions and ``supersample`` have their own)
+UPPER_BOUNDS = {
+    # sequences per split, each rendered, simulated and stored (GOPRO has 22 and 11)
+    "n_train": 10_000, "n_test": 10_000,
+    # the frame size of every recording (rdnet.events.core.MAX_SENSOR_SIDE)
+    "height": MAX_SENSOR_SIDE, "width": MAX_SENSOR_SIDE,
+    # frames per sequence: more than an hour at 240 Hz (the paper profile's 100000: all of them)
+    "n_frames": 1_000_000,
+    # motion per frame: beyond the largest frame side everything leaves the view at once
+    "speed_px": MAX_SENSOR_SIDE, "shake_px": MAX_SENSOR_SIDE, "object_speed_px": MAX_SENSOR_SIDE,
+    # half a turn per frame: beyond it the rotation aliases
+    "rotation_deg": 180.0,
+    # objects drawn into every frame: the rendering time grows with them
+    "n_objects": 1000,
+    "seed": MAX_SEED}
 
 
 @dataclass(frozen=True)
@@ -114,6 +132,8 @@ class ScenesConfig:
                 raise ConfigError(f"scenes.{k}", f"must be in [0, 1], got {getattr(self, k)}")
         if not 1 <= self.supersample <= 4:
             raise ConfigError("scenes.supersample", f"must be 1..4, got {self.supersample}")
+        positive("scenes.seed", self.seed)
+        check_bounds("scenes", self, UPPER_BOUNDS)
 
     def count(self, split: str) -> int:
         return {"train": self.n_train, "test": self.n_test}[_check_split(split)]

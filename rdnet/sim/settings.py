@@ -8,8 +8,21 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Any, Tuple
 
-from rdnet.config import positive
+from rdnet.config import MAX_RATE_HZ, ONE_HOUR_US, check_bounds, positive
 from rdnet.errors import ConfigError
+
+#: bounds of the ``sensor`` keys, in log units (checked by :func:`rdnet.config.check_bounds`)
+SENSOR_LOWER_BOUNDS = {
+    # a threshold below 0.1 % of log intensity fires on float rounding, one event per 1e-3 of
+    # change (1e-300 ran until killed); real sensors' are 0.1-0.8
+    "threshold_on": 1e-3, "threshold_off": 1e-3}
+SENSOR_UPPER_BOUNDS = {
+    # e^10 (22,000:1) per event: more than the log range of an 8- or 12-bit frame (5.5, 8.3),
+    # so a larger threshold only silences the pixel
+    "threshold_on": 10.0, "threshold_off": 10.0,
+    # an offset of the full-scale intensity makes log(I + eps) nearly linear (a [0, 1] frame
+    # spans less than ln 2); 1e308 overflowed float32 and the error blamed the frames
+    "log_eps": 1.0}
 
 
 @dataclass(frozen=True)
@@ -28,6 +41,7 @@ class SensorConfig:
         positive("sensor.threshold_on", self.threshold_on, allow_zero=False)
         positive("sensor.threshold_off", self.threshold_off, allow_zero=False)
         positive("sensor.log_eps", self.log_eps, allow_zero=False)
+        check_bounds("sensor", self, SENSOR_UPPER_BOUNDS, SENSOR_LOWER_BOUNDS)
 
 
 #: The degradations proper (each off at 0, ``onoff_ratio`` off at 1); the remaining
@@ -36,6 +50,37 @@ class SensorConfig:
 EFFECT_KEYS: tuple[str, ...] = (
     "threshold_sigma", "onoff_ratio", "cutoff_hz", "sample_period_us", "refractory_us",
     "shot_noise_hz", "leak_hz", "hot_pixel_fraction", "hot_pixel_hz", "jitter_us", "latency_us")
+
+#: bounds of the ``degrade`` keys (checked by :func:`rdnet.config.check_bounds`; the fractions
+#: ``threshold_sigma``, ``hot_pixel_fraction`` and ``hot_pixel_on_fraction`` are at most 1), far
+#: beyond any real sensor's values and short of where the simulation overflowed, ran until
+#: killed or dropped every event; :func:`rdnet.sim.randomize.scale_degrade` caps a scaled
+#: value at them
+DEGRADE_UPPER_BOUNDS = {
+    # ON and OFF thresholds 100x apart (the calibration searches 0.4-2.5); beyond, one of them
+    # shrinks towards 0 with the ratio's root (1e300 ran until killed)
+    "onoff_ratio": 100.0,
+    # durations in int64 microseconds: 1e19 us of refractory period gave 0 events without a
+    # word, 1e30 us of latency or jitter overflowed
+    "sample_period_us": ONE_HOUR_US, "refractory_us": ONE_HOUR_US, "jitter_us": ONE_HOUR_US,
+    "latency_us": ONE_HOUR_US,
+    # rates: a pixel cannot fire faster than ~1 MHz (1e300 Hz of shot noise ran until killed);
+    # a photoreceptor's bandwidth is Hz to kHz (the calibration searches 1-3000 Hz)
+    "shot_noise_hz": MAX_RATE_HZ, "leak_hz": MAX_RATE_HZ, "hot_pixel_hz": MAX_RATE_HZ,
+    "cutoff_hz": MAX_RATE_HZ,
+    # shot noise is a dark-pixel effect (v2e: 0.25 at full intensity); 10x the dark rate keeps
+    # the bright rate within 10 MHz
+    "shot_noise_bright_factor": 10.0,
+    # std of log10 of the per-pixel leak rate (v2e: 0.1); at 3 decades the mean-preserving
+    # factor is exp(-s^2 / 2) = 4e-11 and a few pixels hold all the leak (1e300 gave NaN rates)
+    "leak_spread_decades": 3.0,
+    # dark current as a fraction of full scale: at 1 the dark bandwidth is already half the
+    # bright one (v2e: 20/255; the calibration searches 0.003-0.3)
+    "cutoff_floor": 1.0,
+    # Beta concentration: at 1e6 every hot pixel's ON share is within 0.001 of the mean (std
+    # sqrt(m (1 - m) / (k + 1))), so larger values change nothing (the calibration clips at 1000)
+    "hot_pixel_polarity_concentration": 1e6}
+DEGRADE_LOWER_BOUNDS = {"onoff_ratio": 1 / DEGRADE_UPPER_BOUNDS["onoff_ratio"]}   # the mirror image
 
 
 @dataclass(frozen=True)
@@ -113,6 +158,7 @@ class DegradeConfig:
         if self.threshold_sigma > 1:
             raise ConfigError("degrade.threshold_sigma",
                               f"must be <= 1 (a fraction of the threshold), got {self.threshold_sigma}")
+        check_bounds("degrade", self, DEGRADE_UPPER_BOUNDS, DEGRADE_LOWER_BOUNDS)
 
     def active(self) -> list[str]:
         """Names of the effects that are on."""
@@ -133,6 +179,11 @@ def scale_ranges(value) -> tuple[Range, ...]:
     if value and isinstance(value[0], (tuple, list)):
         return tuple((float(a), float(b)) for a, b in value)
     return ((float(value[0]), float(value[1])),)
+
+
+#: bounds of the ``randomize`` scales, factors on the ``degrade`` section: the study's are
+#: 0.5-2 (the stress test's 3); a scaled value is capped at its key's bound anyway
+RANDOMIZE_UPPER_BOUNDS = {"train_scale": 100.0, "test_scale": 100.0}
 
 
 @dataclass(frozen=True)
@@ -175,6 +226,7 @@ class RandomizeConfig:
                     raise ConfigError(key, f"expected finite lo <= hi, got {list(rng)}")
             ranges = scale_ranges(value)
             object.__setattr__(self, name, ranges if nested else ranges[0])
+        check_bounds("randomize", self, RANDOMIZE_UPPER_BOUNDS)
         object.__setattr__(self, "keys", tuple(self.keys))
         for k in self.keys:
             if k not in EFFECT_KEYS:

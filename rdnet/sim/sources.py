@@ -25,6 +25,8 @@ import cv2
 import numpy as np
 
 from rdnet.errors import ConfigError, FormatError
+from rdnet.events.io._common import check_frame_image
+from rdnet.events.io.dispatch import FORMATS
 from rdnet.events.recording import Frames
 from rdnet.sim.scenes import srgb_to_linear
 
@@ -32,7 +34,9 @@ log = logging.getLogger(__name__)
 
 VIDEO_SUFFIXES = (".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm")
-HDF5_SUFFIXES = (".h5", ".hdf5", ".hdf")
+#: the HDF5 names the event readers take (rdnet.events.io.dispatch.FORMATS), so a frame
+#: source and a recording are named alike
+HDF5_SUFFIXES = tuple(s for s, kind in FORMATS.items() if kind == "hdf5")
 #: frames a video may decode short of the count its container declares (some containers
 #: round it); more missing means a truncated or corrupt file, an error
 VIDEO_FRAME_COUNT_SLACK = 1
@@ -114,11 +118,8 @@ def _iter_folder(path, max_frames, fps_hz, linearize, chunk_frames) -> Iterator[
             img = cv2.imread(str(q), cv2.IMREAD_UNCHANGED)
             if img is None:
                 raise FormatError(q, None, "cannot decode image")
-            if dtype is None:
-                dtype = img.dtype
-            elif img.dtype != dtype:    # each is scaled by its own full scale: mixed depths are two sources
-                raise FormatError(q, None, f"image is {img.dtype} ({8 * img.dtype.itemsize}-bit), the first "
-                                  f"is {dtype} ({8 * dtype.itemsize}-bit): one bit depth per frame folder")
+            check_frame_image(q, img, dtype, "frame folder")
+            dtype = img.dtype
             img = _to_linear(img, linearize)
             if shape is None:
                 shape = img.shape

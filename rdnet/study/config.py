@@ -13,8 +13,22 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, Optional
 
-from rdnet.config import from_dict
+from rdnet.config import MAX_SEED, MAX_THREADS, at_most, check_bounds, from_dict
 from rdnet.errors import ConfigError
+from rdnet.sim.settings import RANDOMIZE_UPPER_BOUNDS
+
+#: bounds of the ``study`` keys (checked by :func:`rdnet.config.check_bounds`; at most
+#: :data:`MAX_SEEDS` seeds)
+UPPER_BOUNDS = {
+    "seeds": MAX_SEED,
+    # training processes at once (as threads)
+    "parallel": MAX_THREADS,
+    # factors on the ``degrade`` section, as the ``randomize`` scales
+    "stress_scales": RANDOMIZE_UPPER_BOUNDS["test_scale"],
+    # draws of the circuit generator: seconds each on the embedded test split, hours on GOPRO's
+    "circuit_draws": 100}
+#: every network is trained once per seed (as ``calibrate.seeds``: far more than a spread needs)
+MAX_SEEDS = 100
 
 
 @dataclass(frozen=True)
@@ -66,6 +80,9 @@ class StudyConfig:
             raise ConfigError("study.circuit_draws", f"must be >= 0 (0: off), got {self.circuit_draws}")
         if int(self.parallel) < 1:
             raise ConfigError("study.parallel", f"must be >= 1, got {self.parallel}")
+        if len(seeds) > MAX_SEEDS:
+            raise ConfigError("study.seeds", f"at most {MAX_SEEDS} seeds, got {len(seeds)}")
+        check_bounds("study", self, UPPER_BOUNDS)
 
 
 @dataclass(frozen=True)
@@ -83,6 +100,7 @@ class NetworkConfig:
     def __post_init__(self):
         if not self.iterations_factor > 0:
             raise ConfigError("networks.*.iterations_factor", f"must be > 0, got {self.iterations_factor}")
+        at_most("networks.*.iterations_factor", self.iterations_factor, 100.0)   # the study's: 2
 
 
 def network(params: dict, name: str) -> NetworkConfig:

@@ -19,28 +19,36 @@ filtering of the voxels).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Literal, Optional
 
 import numpy as np
 from tqdm import tqdm
 
-from rdnet.config import from_dict
+from rdnet.config import at_most, check_bounds, from_dict, positive
 from rdnet.errors import ConfigError
+from rdnet.restore.settings import RESTORE_UPPER_BOUNDS, check_stcf_k
 
 log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
 class FilterConfig:
-    """Parameters of the event-denoising baselines."""
+    """Parameters of the event-denoising baselines (``ablation.filters``; the bounds of the
+    ``restore`` keys of the same names)."""
 
     stcf_tau_us: int = 10000
     stcf_k: int = 2
     stcf_radius: int = 1
     gef_radius: int = 2
     gef_eps: float = 0.01
+
+    def __post_init__(self):
+        for f in fields(self):
+            positive(f"ablation.filters.{f.name}", getattr(self, f.name), allow_zero=False)
+        check_bounds("ablation.filters", self, {k: v for k, v in RESTORE_UPPER_BOUNDS.items() if hasattr(self, k)})
+        check_stcf_k("ablation.filters.stcf_k", self.stcf_k, self.stcf_radius)
 
 
 @dataclass(frozen=True)
@@ -61,6 +69,14 @@ class RowConfig:
             raise ConfigError("ablation.rows.*.filter", "filters apply to deblur rows only")
         if (self.filter == "rdnet") != bool(self.filter_checkpoint):
             raise ConfigError("ablation.rows.*.filter_checkpoint", "is given with filter rdnet, and only then")
+        if self.paper_psnr is not None:       # printed beside the row: 100 dB is an RMS error of 1e-5
+            positive("ablation.rows.*.paper_psnr", self.paper_psnr)
+            at_most("ablation.rows.*.paper_psnr", self.paper_psnr, 100.0)
+
+
+#: bounds of the ``ablation`` keys: samples per network call in memory at once (as
+#: ``train.batch_size``), equal-width bins of the degradation level in the report
+ABLATION_UPPER_BOUNDS = {"batch_size": 4096, "level_bins": 100}
 
 
 @dataclass(frozen=True)
@@ -70,6 +86,11 @@ class AblationConfig:
     batch_size: int = 8
     device: str = "auto"
     level_bins: int = 4
+
+    def __post_init__(self):
+        for key in ABLATION_UPPER_BOUNDS:
+            positive(f"ablation.{key}", getattr(self, key), allow_zero=False)
+        check_bounds("ablation", self, ABLATION_UPPER_BOUNDS)
 
     def row(self, row_id: str) -> RowConfig:
         if row_id not in self.rows:

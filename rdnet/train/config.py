@@ -8,11 +8,42 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, Optional
 
-from rdnet.config import positive
+from rdnet.config import MAX_SEED, MAX_THREADS, check_bounds, positive
 from rdnet.errors import ConfigError
+from rdnet.events.core import MAX_SENSOR_SIDE
 
 #: train.restore_output -> RestoreNet output.
 RESTORE_OUTPUTS = {"signed_masked": "signed", "counts": "counts"}
+
+#: bounds of the ``train`` keys (checked by :func:`rdnet.config.check_bounds`; ``lr_min`` is at
+#: most ``lr``, ``clean_fraction`` below 1)
+TRAIN_UPPER_BOUNDS = {
+    # optimiser steps: the paper trains 300,000; 1e8 is years at a step a second; the steps
+    # between logs and checkpoints likewise
+    "iterations": 100_000_000, "log_every": 100_000_000, "ckpt_every": 100_000_000,
+    # samples per step, in memory at once (the paper: 8; 1e9 was killed for memory)
+    "batch_size": 4096,
+    # a square crop of a frame: at most the largest frame side
+    "crop": MAX_SENSOR_SIDE,
+    # Adam's step size: at 1 a step moves every weight by up to 1 (the paper: 2e-4; 1e300
+    # overflowed float32); the weight decay pulls weights to 0 at most as fast
+    "lr": 1.0, "weight_decay": 1.0,
+    # a gradient norm beyond 1e6 never clips: as good as off (0)
+    "grad_clip": 1e6,
+    # loss-term weights relative to the deblurring loss's 1 (the study's are <= 1): beyond 1000
+    # one term swamps the others
+    "alpha": 1000.0, "beta": 1000.0, "stage2_alpha": 1000.0, "empty_weight": 1000.0,
+    "occupancy_weight": 1000.0,
+    # stage 1's learning rate relative to ``lr`` (the study: 1)
+    "restore_lr_scale": 10.0,
+    # held-out sequences: as many as ``scenes.n_train`` may hold
+    "val_sequences": 10_000,
+    "seed": MAX_SEED, "num_workers": MAX_THREADS, "threads": MAX_THREADS}
+
+#: bounds of the ``model`` keys: the first level's channels (doubled per level; the paper
+#: preset's 24: parameters grow with its square, 256 gives ~110x the paper's 7.9 M) and the
+#: residual blocks per level (the presets' 1-2)
+MODEL_UPPER_BOUNDS = {"width": 256, "enc_depths": 64, "middle_depth": 64, "dec_depths": 64}
 
 
 @dataclass(frozen=True)
@@ -131,6 +162,7 @@ class TrainConfig:
             raise ConfigError("train.stage2_input", f"must be restored or dual, got {self.stage2_input!r}")
         if self.device not in ("cpu", "cuda", "auto"):
             raise ConfigError("train.device", f"must be cpu, cuda or auto, got {self.device!r}")
+        check_bounds("train", self, TRAIN_UPPER_BOUNDS)
 
 
 @dataclass(frozen=True)
@@ -159,6 +191,7 @@ class ModelConfig:
         if (self.enc_depths is not None and self.dec_depths is not None
                 and len(self.enc_depths) != len(self.dec_depths)):
             raise ConfigError("model.dec_depths", "must have as many levels as model.enc_depths")
+        check_bounds("model", self, MODEL_UPPER_BOUNDS)
 
     def overrides(self) -> dict:
         """The keyword overrides passed to ``build_model`` (the keys that are set)."""

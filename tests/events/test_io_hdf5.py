@@ -136,7 +136,7 @@ def test_failed_overwrite_keeps_the_old_file(tmp_path, make_recording, same_reco
     rec = make_recording(100)
     path = tmp_path / "keep.h5"
     write_recording(path, rec)
-    with pytest.raises(ValidationError):
+    with pytest.raises(FormatError, match=r"keep\.h5: field 'attrs/bad': unsupported attribute type dict"):
         write_recording(path, rec, attrs={"bad": {"nested": "dict"}})
     same_recording(read_recording(path), rec)
     assert list(tmp_path.iterdir()) == [path]

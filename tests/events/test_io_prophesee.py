@@ -212,3 +212,18 @@ def test_out_of_order_words_are_sorted_in_a_unit_and_clamped_across_units(tmp_pa
         ev = r.read()
         assert r.clamped_events == 1
     assert ev.t.tolist()[-3:] == [74, 74, 76] and ev.x.tolist()[-2:] == [70, 71]
+
+
+def test_data_that_begin_with_a_percent_sign_after_a_header_without_end(tmp_path):
+    """A RAW file without `% end` whose first data byte is `%` (0x25, here the low byte of a
+    TIME_HIGH word) had the data read as a header line; with `% end`, as before."""
+    head = f"% evt 2.0\n% geometry {W}x{H}\n"
+    words = [(0x8 << 28) | 0x25, (1 << 28) | (5 << 22) | (7 << 11) | 10, (6 << 22) | (8 << 11) | 11]
+    data = np.array(words, "<u4").tobytes()
+    for header in (head, head + "% end\n"):
+        path = tmp_path / "p.raw"
+        path.write_bytes(header.encode() + data)
+        assert read_header(path).data_offset == len(header)
+        ev = load(path).events
+        assert ev.t.tolist() == [0x25 * 64 + 5, 0x25 * 64 + 6] and ev.x.tolist() == [7, 8]
+        assert ev.y.tolist() == [10, 11] and ev.p.tolist() == [1, 0]

@@ -71,6 +71,22 @@ def check_sensor_size(path: str | Path, size: tuple[int, int], requested: tuple[
                                                 f"requested {requested[0]}x{requested[1]}")
 
 
+def check_frame_image(path: str | Path, img: np.ndarray, first: np.dtype | None, source: str) -> None:
+    """A decoded image of a list of frames (a frame folder, an ``images.txt``): the bit depth
+    of the first image of the list (``first``; None for the first itself), since each is scaled
+    by its own full scale and mixed depths are two sources, and a float image within [0, 1]
+    (float frames are linear intensity; 255.0 is an 8-bit value stored as a float).
+    :class:`FormatError` naming the image otherwise."""
+    if first is not None and img.dtype != first:
+        raise FormatError(path, None, f"image is {img.dtype} ({8 * img.dtype.itemsize}-bit), the first "
+                          f"is {first} ({8 * first.itemsize}-bit): one bit depth per {source}")
+    if img.dtype.kind == "f":
+        bad = ~((img >= 0) & (img <= 1))                      # NaN too
+        if bad.any():
+            raise FormatError(path, None, f"{img.dtype} image holds values outside [0, 1] (e.g. "
+                              f"{img[bad].flat[0]:g}): float frames are linear intensity in [0, 1]")
+
+
 def temp_path_for(path: str | Path) -> Path:
     """A fresh, unused temporary file name in the folder of ``path`` (same file system,
     so ``os.replace`` is atomic). The file is created empty."""

@@ -412,16 +412,18 @@ class H5RecordingWriter:
     # --- content --------------------------------------------------------------------
     def set_attr(self, key: str, value) -> None:
         """Root attribute (str, int, float, bool, a numpy array or a list of numbers);
-        width/height/format are managed by the writer, ``sensor`` may be overwritten."""
+        width/height/format are managed by the writer, ``sensor`` may be overwritten. One it
+        cannot store is a :class:`FormatError` naming the file and the attribute."""
         f = self._check_open()
         if key in _RESERVED_ATTRS and key != "sensor":
-            raise ValidationError(f"attrs/{key}", "reserved attribute")
+            raise FormatError(self.path, f"attrs/{key}", "reserved attribute")
         if isinstance(value, (list, tuple)) and all(isinstance(v, (int, float)) for v in value):
             value = np.asarray(value)
         if not isinstance(value, (str, int, float, bool, np.generic, np.ndarray)):
-            raise ValidationError(f"attrs/{key}", f"unsupported attribute type {type(value).__name__} "
-                                                  "(use str, int, float, bool or a numpy array; JSON-encode dicts)")
-        f.attrs[key] = value
+            raise FormatError(self.path, f"attrs/{key}", f"unsupported attribute type {type(value).__name__} (use "
+                              "str, int, float, bool or a numpy array; JSON-encode dicts)")
+        with wrap_errors(self.path, f"attrs/{key}", what="cannot write"):     # e.g. a NUL in a string
+            f.attrs[key] = value
 
     def _stream(self, group: str) -> _Stream:
         st = self._streams.get(group)

@@ -82,11 +82,23 @@ class ProphHeader:
         return {"evt2": 4, "evt3": 2, "dat": 8}[self.encoding]
 
 
+#: A header line: ``%``, then a key and its value in printable ASCII (or nothing).
+_HEADER_LINE = re.compile(rb"%[ \t]*(?:[A-Za-z][\x20-\x7e\t]*)?\r?")
+#: The ``% end`` line that ends the header of newer RAW files.
+_HEADER_END = re.compile(rb"(?:^|\n)%[ \t]*end[ \t\r]*\n")
+
+
 def _header_lines(path: Path, fh) -> tuple[list[str], int]:
+    """The header lines and the offset of the first data byte. Without ``% end`` the header
+    ends at the first line that is not ``%`` plus text: data whose first byte is ``%`` (0x25)
+    are data; with it, a bad line before it is an error."""
     head = fh.read(MAX_HEADER_BYTES + 2)
+    has_end = _HEADER_END.search(head) is not None
     lines, pos = [], 0
     while pos < len(head) and head[pos:pos + 1] == b"%":
         end = head.find(b"\n", pos)
+        if not has_end and not _HEADER_LINE.fullmatch(head, pos, len(head) if end < 0 else end):
+            break
         if end < 0:
             raise FormatError(path, "header", f"header line at byte {pos} does not end (truncated file?)")
         try:

@@ -27,7 +27,8 @@ import numpy as np
 
 from rdnet.errors import FormatError, ValidationError
 from rdnet.events.core import EVENT_DTYPE, Events
-from rdnet.events.io._common import as_format_error, atomic_output, remove_quietly, require_file, wrap_errors
+from rdnet.events.io._common import (as_format_error, atomic_output, check_frame_image, remove_quietly, require_file,
+                                     wrap_errors)
 from rdnet.events.recording import Frames, Recording
 
 log = logging.getLogger(__name__)
@@ -146,12 +147,14 @@ def read_text_frames(images_txt: str | Path) -> Frames:
     if not (np.isfinite(t_s).all() and np.isfinite(exp_s).all()):
         raise FormatError(images_txt, "images", "missing or non-numeric time/exposure")
     folder = images_txt.parent
-    images = []
+    images, first = [], None
     for name in df[1].tolist():
         f = folder / str(name)
         img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED) if f.is_file() else None
         if img is None:
             raise FormatError(f, "images", "missing or unreadable image")
+        check_frame_image(f, img, first, f"frame list ({IMAGES_TXT})")
+        first = img.dtype
         if img.ndim == 3:
             img = cv2.cvtColor(img[:, :, :3], cv2.COLOR_BGR2RGB)
         if img.dtype == np.uint16:
