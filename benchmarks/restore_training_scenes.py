@@ -10,8 +10,9 @@ for the DAVIS346, DVXplorer, ECD and night files) and, with a static camera, its
 holds noise only. This script renders the training split with each variant's ``scenes``
 overrides (default: ``static_fraction`` 0, 0.25 and 0.5: that share of the sequences has a still
 camera, the objects still move), simulates and pairs it with the study's other settings,
-trains the events-only count stage 1 (``restore_events``, study ``model``/``train`` settings)
-per seed, and scores every network
+trains the events-only count stage 1 (``restore_events``, study ``model``/``train`` settings;
+``--task restore``: the image-guided one, for recordings with frames) per seed, and scores
+every network
 
 - on simulated test pairs (``--test``, default the study's ``data/pairs/test.h5``; more than one
   may be given as NAME=PATH) with the event metrics of ``benchmarks/restore_learned_eval.py``;
@@ -148,6 +149,8 @@ def main() -> None:
     ap.add_argument("--variants", nargs="*", default=DEFAULT_VARIANTS,
                     help="NAME=JSON: overrides of the scenes section for the training split")
     ap.add_argument("--seeds", type=int, nargs="*", default=[0, 1])
+    ap.add_argument("--task", default="restore_events", choices=["restore_events", "restore"],
+                    help="events-only (default) or image-guided stage 1 (then give only recordings with frames)")
     ap.add_argument("--test", nargs="*", default=["study=data/pairs/test.h5"],
                     help="NAME=PATH of simulated test pairs (relative to the repository)")
     ap.add_argument("--recordings", nargs="*", default=list(RECORDINGS))
@@ -176,7 +179,7 @@ def main() -> None:
         name, spec = item.split("=", 1)
         variants[name] = json.loads(spec)
     tests = dict(t.split("=", 1) for t in args.test)
-    res = {"test_pairs": tests, "seeds": args.seeds, "iterations": iterations,
+    res = {"test_pairs": tests, "seeds": args.seeds, "iterations": iterations, "task": args.task,
            "scenes": params["scenes"], "load_average_1min_before": os.getloadavg()[0],
            "variants": {n: {"scenes_overrides": v, "runs": {}} for n, v in variants.items()}, "real": {}}
     with tempfile.TemporaryDirectory() as tmp:
@@ -195,7 +198,7 @@ def main() -> None:
             if ck.is_file():
                 log.info("reusing %s", ck)
                 return ck, None
-            return train("restore_events", job[2], job[3], job[1], iterations)
+            return train(args.task, job[2], job[3], job[1], iterations)
         with ThreadPoolExecutor(max_workers=args.parallel) as pool:
             done = list(pool.map(run, jobs))
         ckpts = {}
