@@ -5,7 +5,16 @@ The CLI turns any ``RdnetError`` into a one-line message on stderr and exit code
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+
+
+def escape_controls(text: str) -> str:
+    """``text`` (a path, a message) with control characters escaped as Python writes them (a
+    newline in a file name becomes ``\\n``), so an error message stays one line."""
+    return _CONTROL.sub(lambda m: repr(m.group())[1:-1], text)
 
 
 class RdnetError(Exception):
@@ -20,7 +29,7 @@ class FormatError(RdnetError):
         self.field = field
         where = []
         if self.path is not None:
-            where.append(self.path)
+            where.append(escape_controls(self.path))
         if field:
             where.append(f"field '{field}'")
         prefix = ": ".join(where)
@@ -42,7 +51,7 @@ class ConfigError(RdnetError):
         self.key = key
         self.detail = message
         self.source = None if source is None else str(source)
-        pre = f"{self.source}: " if self.source else ""
+        pre = f"{escape_controls(self.source)}: " if self.source else ""
         super().__init__(f"{pre}parameter '{key}': {message}")
 
 

@@ -623,3 +623,57 @@ def test_a_root_attribute_the_writer_cannot_store_names_the_file(capsys, tmp_pat
         with H5RecordingWriter(tmp_path / "x.h5", 4, 4) as w:
             w.set_attr("s", "a\x00b")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.h5"]
+
+
+def test_a_byte_order_mark_before_the_size_header_is_read(capsys, tmp_path):
+    """An editor's UTF-8 BOM before the ``W H`` line hid the header: the size was unknown."""
+    from rdnet.events.io.text import read_text_events
+    p = tmp_path / "events.txt"
+    p.write_bytes(b"\xef\xbb\xbf8 6\n0.000001 1 2 1\n0.000002 3 4 0\n")
+    ev = read_text_events(p)
+    assert (ev.width, ev.height, len(ev)) == (8, 6, 2)
+    rc, out, _ = _run(capsys, ["info", str(p)])
+    assert rc == 0 and "(8 x 6)" in out
+
+
+def test_an_output_name_that_fits_the_file_system_is_written(capsys, tmp_path, make_recording):
+    """A 251-character name failed: the temporary name next to it is 14 characters longer."""
+    from rdnet.events.io import save
+    save(tmp_path / "rec.h5", make_recording(n_events=50))
+    out = tmp_path / ("n" * 248 + ".h5")
+    rc, _, err = _run(capsys, ["convert", str(tmp_path / "rec.h5"), str(out)])
+    assert rc == 0, err
+    assert out.is_file() and not list(tmp_path.glob(".*.tmp"))
+
+
+def test_a_newline_in_a_path_keeps_the_message_on_one_line(capsys, tmp_path):
+    rc, _, err = _run(capsys, ["info", str(tmp_path / "a\nb.h5")])
+    assert rc == 2 and "a\\nb.h5" in _one_line(err) and len(err.strip().splitlines()) == 1
+
+
+def test_sigterm_removes_the_temporary_output_and_exits_143(capsys, tmp_path, monkeypatch):
+    """``kill`` (SIGTERM) left the temporary file behind; Ctrl-C did not."""
+    import argparse
+    import os
+    import signal
+    import time
+
+    import rdnet.cli as cli
+    from rdnet.events.io._common import atomic_output
+
+    def killed(args):
+        with atomic_output(tmp_path / "o.h5") as tmp:
+            tmp.write_bytes(b"partial")
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)                       # the handler raises before this ends
+        return 0
+
+    parser = argparse.ArgumentParser(prog="rdnet")
+    parser.add_argument("-v", "--verbose", action="store_true")
+    parser.set_defaults(func=killed, command="simulate")
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    before = signal.getsignal(signal.SIGTERM)
+    rc, _, err = _run(capsys, [])
+    assert rc == 143 and "terminated" in err
+    assert list(tmp_path.iterdir()) == []
+    assert signal.getsignal(signal.SIGTERM) == before

@@ -6,13 +6,16 @@ User errors (:class:`rdnet.errors.RdnetError`) print one line and exit with code
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
 import os
+import signal
 import sys
+import threading
 
 from rdnet import __version__
-from rdnet.errors import RdnetError
+from rdnet.errors import RdnetError, escape_controls
 
 COMMANDS = ["info", "convert", "simulate", "calibrate", "restore", "deblur", "rdnet.train.run"]
 
@@ -32,19 +35,45 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(BaseException):
+    """SIGTERM (``kill``, a job scheduler's time limit) turned into an exception, so the
+    temporary outputs are removed on the way out as they are for Ctrl-C."""
+
+
+def _terminate(signum, frame):
+    raise Terminated()
+
+
+@contextlib.contextmanager
+def _sigterm_raises():
+    """Within: SIGTERM raises :class:`Terminated` (main thread only; elsewhere unchanged)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
     try:
-        rc = args.func(args)
+        with _sigterm_raises():
+            rc = args.func(args)
     except RdnetError as e:
-        print(f"rdnet {args.command}: error: {e}", file=sys.stderr)
+        print(f"rdnet {args.command}: error: {escape_controls(str(e))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except Terminated:
+        print("terminated", file=sys.stderr)
+        return 143
     except BrokenPipeError:
         # the reader of stdout went away (`rdnet info rec.h5 | head -1`): as a Unix tool does,
         # stop quietly; stdout is pointed at /dev/null so the interpreter's final flush

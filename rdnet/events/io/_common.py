@@ -87,6 +87,17 @@ def check_frame_image(path: str | Path, img: np.ndarray, first: np.dtype | None,
                               f"{img[bad].flat[0]:g}): float frames are linear intensity in [0, 1]")
 
 
+#: bytes of the output name a temporary name keeps: file systems take 255 a name and the
+#: temporary one adds 14 (".", "." + 8 random characters, ".tmp")
+TEMP_NAME_KEEP_BYTES = 200
+
+
+def _short(name: str) -> str:
+    """``name`` cut to :data:`TEMP_NAME_KEEP_BYTES` of UTF-8 (whole characters), so a name
+    that fits the file system still does with the temporary name's additions."""
+    return name.encode()[:TEMP_NAME_KEEP_BYTES].decode(errors="ignore")
+
+
 def temp_path_for(path: str | Path) -> Path:
     """A fresh, unused temporary file name in the folder of ``path`` (same file system,
     so ``os.replace`` is atomic). The file is created empty."""
@@ -96,7 +107,7 @@ def temp_path_for(path: str | Path) -> Path:
         what = "is not a folder" if folder.exists() else "does not exist"
         raise FormatError(path, None, f"output folder {str(folder)!r} {what}")
     try:
-        fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+        fd, name = tempfile.mkstemp(prefix=f".{_short(path.name)}.", suffix=".tmp", dir=folder)
         os.close(fd)
         os.chmod(name, 0o666 & ~_umask())   # mkstemp makes 0600; give the final file the usual mode
     except OSError as e:
@@ -140,7 +151,7 @@ def atomic_directory(path: str | Path) -> Iterator[Path]:
     parent = path.parent if str(path.parent) else Path(".")
     try:
         parent.mkdir(parents=True, exist_ok=True)
-        stage = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=parent))
+        stage = Path(tempfile.mkdtemp(prefix=f".{_short(path.name)}.", suffix=".tmp", dir=parent))
     except OSError as e:
         raise FormatError(path, None, f"cannot write ({e.strerror or e})") from None
     try:

@@ -35,13 +35,15 @@ log = logging.getLogger(__name__)
 
 IMAGES_TXT = "images.txt"
 IMAGES_DIR = "images"
+#: the UTF-8 byte order mark some editors write first (pandas skips it in the table)
+_BOM = b"\xef\xbb\xbf"
 
 
 def _size_header(path: Path) -> tuple[int, int] | None:
     """(width, height) if the first non-comment line is two integers, else None."""
     with open(path, "rb") as fh:
         for raw in fh:
-            line = raw.strip()
+            line = raw.removeprefix(_BOM).strip()     # an editor's UTF-8 byte order mark
             if not line or line.startswith(b"#"):
                 continue
             tok = line.split()
@@ -76,7 +78,7 @@ def _skip_rows(path: Path) -> int:
     """Number of leading lines up to and including the size header."""
     with open(path, "rb") as fh:
         for i, raw in enumerate(fh):
-            line = raw.strip()
+            line = raw.removeprefix(_BOM).strip()
             if line and not line.startswith(b"#"):
                 return i + 1
     return 0
