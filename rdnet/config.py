@@ -193,9 +193,32 @@ def parse_set(item: str) -> tuple[list[str], Any]:
         value = raw
     except ValueError as e:            # e.g. an integer of more digits than Python converts
         raise ConfigError(key, f"cannot read the value ({str(e).splitlines()[0][:120]})") from None
+    return key.split("."), _exponent_numbers(value)
+
+
+def _exponent_numbers(value):
+    """``value`` with every string in exponent form read as a float, inside lists and
+    mappings too (YAML 1.1 reads 1e3, without a dot, as a string: ``[1.0, 1e300]``)."""
     if isinstance(value, str) and _EXPONENT_NUMBER.fullmatch(value.strip()):
-        value = float(value)             # YAML 1.1 reads 1e3 (no dot) as a string
-    return key.split("."), value
+        return float(value)
+    if isinstance(value, list):
+        return [_exponent_numbers(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _exponent_numbers(v) for k, v in value.items()}
+    return value
+
+
+def _nested_section(cls, name: str):
+    """The dataclass type of field ``name`` of dataclass ``cls`` when that field holds a
+    nested dataclass (``ablation.filters``), else None."""
+    if cls is None or not dataclasses.is_dataclass(cls):
+        return None
+    for f in dataclasses.fields(cls):
+        if f.name == name:
+            default = f.default if f.default is not dataclasses.MISSING else (
+                f.default_factory() if f.default_factory is not dataclasses.MISSING else None)
+            return type(default) if dataclasses.is_dataclass(default) else None
+    return None
 
 
 def apply_sets(params: Mapping, sets: Iterable[str], source: str | Path | None = None) -> dict:
@@ -208,15 +231,20 @@ def apply_sets(params: Mapping, sets: Iterable[str], source: str | Path | None =
             raise ConfigError(parts[0], f"a whole section takes a mapping of keys, got {value!r}; "
                                         f"set one key with {parts[0]}.KEY=VALUE", source)
         node = out
+        cls = section_class(parts[0]) if parts[0] in SECTIONS else None   # the dataclass of `node`
         for i, part in enumerate(parts[:-1]):
+            if i > 0:
+                nested = _nested_section(cls, part)
+                if isinstance(node, dict) and part not in node and nested is not None:
+                    node[part] = {}        # a nested section the file omits (ablation.filters)
+                cls = nested
             if not isinstance(node, dict) or part not in node:
                 raise ConfigError(".".join(parts), "unknown key (not in params)", source)
             node = node[part]
         last = parts[-1]
         if not isinstance(node, dict) or last not in node:
             # allow sections known to rdnet even if the file omits the key
-            if len(parts) == 2 and parts[0] in SECTIONS and isinstance(node, dict):
-                cls = section_class(parts[0])
+            if cls is not None and isinstance(node, dict):
                 if last not in {f.name for f in dataclasses.fields(cls)}:
                     raise ConfigError(".".join(parts), "unknown key", source)
             else:

@@ -677,3 +677,16 @@ def test_sigterm_removes_the_temporary_output_and_exits_143(capsys, tmp_path, mo
     assert rc == 143 and "terminated" in err
     assert list(tmp_path.iterdir()) == []
     assert signal.getsignal(signal.SIGTERM) == before
+
+
+def test_set_reaches_a_nested_section_the_params_lack_and_reads_exponents_in_lists():
+    """``--set ablation.filters.gef_radius=3`` without a params file said "unknown key" (no
+    ``ablation.filters`` mapping to set it in), and ``1e300`` inside a list stayed a string."""
+    from rdnet.config import section
+    p = load_params(None, ["ablation.filters.gef_radius=3"])
+    assert section(p, "ablation").filters.gef_radius == 3
+    with pytest.raises(ConfigError, match=r"'ablation.filters.nope': unknown key"):
+        load_params(None, ["ablation.filters.nope=3"])
+    with pytest.raises(ConfigError, match=r"'randomize.test_scale': must be at most 100, got 1e\+300"):
+        load_params(None, ["randomize.test_scale=[1.0, 1e300]"])
+    assert load_params(None, ["randomize.test_scale=[1e0, 2e0]"])["randomize"]["test_scale"] == [1.0, 2.0]
