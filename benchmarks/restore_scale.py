@@ -47,27 +47,6 @@ METRICS = ("precision", "recall", "f1", "count_ratio", "l1_all", "l1_events")
 log = logging.getLogger("restore_scale")
 
 
-def copy_rows(src: Path, dst: Path, max_sequence: int | None = None) -> int:
-    """``src`` pairs file to ``dst``, keeping the rows whose ``sequence`` < ``max_sequence`` (all when None); returns the
-    rows written."""
-    import h5py
-    import numpy as np
-    tmp = dst.with_name(dst.name + ".tmp")
-    with h5py.File(src, "r") as f, h5py.File(tmp, "w") as g:
-        seq = f["sequence"][:]
-        keep = np.ones(len(seq), bool) if max_sequence is None else seq < max_sequence
-        def copy(name, v):
-            if isinstance(v, h5py.Dataset):
-                data = v[:][keep]
-                g.create_dataset(name, data=data)
-        f.visititems(copy)
-        for k, v in f.attrs.items():
-            g.attrs[k] = v
-        g.attrs["n_samples"] = int(keep.sum())
-    os.replace(tmp, dst)
-    return int(keep.sum())
-
-
 #: datasets a packed file leaves out: the signed voxels are ON - OFF, and stage 1 never reads
 #: the sharp frames (a restorer trained from an unpacked file equals one trained from the
 #: original: checked on the study's seed 0)
@@ -75,19 +54,34 @@ DERIVED = {"voxel_degraded": ("voxel_degraded_on", "voxel_degraded_off"),
            "voxel_undegraded": ("voxel_undegraded_on", "voxel_undegraded_off")}
 
 
-def pack(src: Path, dst: Path) -> None:
-    """``src`` pairs file without the signed voxels and the sharp frames, gzip + shuffle: small
-    enough to travel to a GPU machine (:func:`unpack` restores a file stage 1 trains on)."""
+def _copy_datasets(f, g, skip=(), rows=None, **create) -> None:
+    """Every dataset of HDF5 file ``f`` (groups walked) but ``skip`` into ``g``, only ``rows``
+    (a boolean mask) of each when given; ``create``: ``create_dataset`` options."""
+    import h5py
+
+    def copy(name, v):                # returns None: visititems stops at a value
+        if isinstance(v, h5py.Dataset) and name not in skip:
+            data = v[:] if rows is None else v[:][rows]
+            opts = dict(create, chunks=(min(8, len(data)), *data.shape[1:])) if create and data.ndim > 1 else {}
+            g.create_dataset(name, data=data, **opts)
+    f.visititems(copy)
+    g.attrs.update(dict(f.attrs))
+
+
+def pack(src: Path, dst: Path, max_sequence: int | None = None) -> int:
+    """``src`` pairs file without the signed voxels and the sharp frames, gzip + shuffle, only
+    the rows whose ``sequence`` < ``max_sequence`` (all when None): small enough to travel to a
+    GPU machine (:func:`unpack` restores a file stage 1 trains on). Returns the rows kept."""
     import h5py
     tmp = dst.with_name(dst.name + ".tmp")
     with h5py.File(src, "r") as f, h5py.File(tmp, "w") as g:
-        def copy(name, v):
-            if isinstance(v, h5py.Dataset) and name not in DERIVED and name != "sharp":
-                g.create_dataset(name, data=v[:], compression="gzip", compression_opts=6, shuffle=True,
-                                 chunks=(min(8, len(v)), *v.shape[1:]) if v.ndim > 1 else None)
-        f.visititems(copy)
-        g.attrs.update(dict(f.attrs))
+        rows = None if max_sequence is None else f["sequence"][:] < max_sequence
+        _copy_datasets(f, g, skip=(*DERIVED, "sharp"), rows=rows, compression="gzip", compression_opts=6,
+                       shuffle=True)
+        n = int(g["sequence"].shape[0])
+        g.attrs["n_samples"] = n
     os.replace(tmp, dst)
+    return n
 
 
 def unpack(src: Path, dst: Path) -> None:
@@ -97,14 +91,10 @@ def unpack(src: Path, dst: Path) -> None:
     import numpy as np
     tmp = dst.with_name(dst.name + ".tmp")
     with h5py.File(src, "r") as f, h5py.File(tmp, "w") as g:
-        def copy(name, v):            # returns None: visititems stops at a value
-            if isinstance(v, h5py.Dataset):
-                g.create_dataset(name, data=v[:])
-        f.visititems(copy)
+        _copy_datasets(f, g)
         for name, (on, off) in DERIVED.items():
             g.create_dataset(name, data=f[on][:] - f[off][:])
         g.create_dataset("sharp", data=np.zeros_like(f["blurry"][:]))
-        g.attrs.update(dict(f.attrs))
     os.replace(tmp, dst)
 
 
@@ -124,10 +114,8 @@ def make_data(factor: int, work: Path) -> dict:
         interpolate_scenes(p, work / "scenes", work / "interp")
         simulate_sequences(p, work / "scenes", work / "interp", work / "events", splits=("train",))
         make_pairs(p, work / "events", work / "pairs", splits=("train",))
-    rows = {}
-    for f in sorted({factor, max(factor // 2, 1)}):
-        rows[f"x{f}"] = copy_rows(full, work / f"full_x{f}.h5", n * f // factor)
-        pack(work / f"full_x{f}.h5", work / f"packed_x{f}.h5")
+    rows = {f"x{f}": pack(full, work / f"packed_x{f}.h5", n * f // factor)
+            for f in sorted({factor, max(factor // 2, 1)})}
     info = {"n_train_sequences": n, "rows": rows, "wall_s": round(time.perf_counter() - t, 1)}
     (work / "data.json").write_text(json.dumps(info, indent=2) + "\n")
     log.info("data: %s", info)
@@ -147,30 +135,23 @@ def parse_variant(spec: str) -> dict:
 
 
 def train_variant(v: dict, out: Path, device: str, seed: int, threads: int, timeout_s: float | None) -> dict:
-    """One training of the image-guided count stage 1 in a child process (stopped after
-    ``timeout_s``: a failed variant, so the others are still scored within a lease)."""
-    cmd = [sys.executable, "-m", "rdnet.train.run", "--task", "restore", "--train", str(ROOT / v["pairs"]),
-           "--out", str(out), "--no-progress", "--params", str(ROOT / "params.yaml"),
-           "--set", f"train.seed={seed}", "--set", f"train.iterations={v['iterations']}",
-           "--set", f"train.crop={v['crop']}", "--set", f"model.size={v['size']}",
-           "--set", "train.dvclive=false", "--set", f"train.threads={threads}",
-           "--set", f"train.device={device}", "--set", f"train.ckpt_every={max(v['iterations'], 1)}"]
-    if "lr" in v:
-        cmd += ["--set", f"train.lr={v['lr']}"]
-    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    """One training of the image-guided count stage 1 in a child process
+    (``restore_train_range.train``; stopped after ``timeout_s``: a failed variant, so the
+    others are still scored within a lease)."""
+    from restore_train_range import train
+    overrides = [f"train.crop={v['crop']}", f"model.size={v['size']}", f"train.threads={threads}",
+                 f"train.device={device}", f"train.ckpt_every={max(v['iterations'], 1)}"]
+    overrides += [f"train.lr={v['lr']}"] if "lr" in v else []
     t = time.perf_counter()
     try:
-        r = subprocess.run(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                           timeout=timeout_s)
+        ckpt, wall = train("restore", ROOT / v["pairs"], out, seed, v["iterations"], overrides, timeout_s)
     except subprocess.TimeoutExpired:
         log.error("%s: stopped after %.0f s", v["name"], timeout_s)
         return {"ok": False, "wall_s": time.perf_counter() - t, "error": f"timed out after {timeout_s:.0f} s"}
-    wall = time.perf_counter() - t
-    if r.returncode != 0:
-        log.error("%s failed (%d): %s", v["name"], r.returncode, r.stderr[-2000:])
-        return {"ok": False, "wall_s": wall, "error": r.stderr[-2000:]}
+    except subprocess.CalledProcessError as e:        # its error line is logged by train
+        return {"ok": False, "wall_s": time.perf_counter() - t, "error": (e.stderr or "")[-2000:]}
     log.info("%s trained in %.0f s", v["name"], wall)
-    return {"ok": True, "wall_s": wall, "checkpoint": out / "model.pt"}
+    return {"ok": True, "wall_s": wall, "checkpoint": ckpt}
 
 
 def table(res: dict) -> str:

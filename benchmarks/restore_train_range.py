@@ -61,10 +61,12 @@ def simulate_train(params: dict, scale, work: Path) -> Path:
     return pairs / "train.h5"
 
 
-def train(task: str, pairs: Path, out: Path, seed: int, iterations: int, overrides=()) -> tuple[Path, float]:
+def train(task: str, pairs: Path, out: Path, seed: int, iterations: int, overrides=(),
+          timeout_s: float | None = None) -> tuple[Path, float]:
     """One training of ``task`` (study ``params.yaml``, one thread, no DVCLive) in a child
-    process; ``overrides``: more ``--set`` values (``"train.clean_fraction=0.2"``). Returns
-    the checkpoint and the wall time."""
+    process; ``overrides``: more ``--set`` values (``"train.clean_fraction=0.2"``; a later one
+    wins). Returns the checkpoint and the wall time; ``subprocess.CalledProcessError`` when
+    it fails, ``subprocess.TimeoutExpired`` after ``timeout_s``."""
     cmd = [sys.executable, "-m", "rdnet.train.run", "--task", task, "--train", str(pairs), "--out", str(out),
            "--no-progress", "--params", str(ROOT / "params.yaml"), "--set", f"train.seed={seed}",
            "--set", f"train.iterations={iterations}", "--set", "train.dvclive=false", "--set", "train.threads=1"]
@@ -72,7 +74,12 @@ def train(task: str, pairs: Path, out: Path, seed: int, iterations: int, overrid
         cmd += ["--set", o]
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     t = time.perf_counter()
-    subprocess.run(cmd, check=True, cwd=ROOT, env=env, stdout=subprocess.DEVNULL)
+    try:
+        subprocess.run(cmd, check=True, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                       text=True, timeout=timeout_s)
+    except subprocess.CalledProcessError as e:      # its error line, which the exception does not show
+        log.error("training %s failed (%d): %s", out, e.returncode, (e.stderr or "").strip()[-2000:])
+        raise
     return out / "model.pt", time.perf_counter() - t
 
 
