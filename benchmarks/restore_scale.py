@@ -226,6 +226,55 @@ def run(args) -> None:
     write_results(args.out, res, table)
 
 
+def score(args) -> None:
+    """Trained checkpoints (``--ckpt NAME=PATH``) scored where rdnet's simulator is not the
+    truth: the study's test sequences rendered by the independent circuit generator (one draw,
+    as the ``restoration_circuit`` stage) and the real DAVIS346 recording (as ``restore_real``
+    scores it: events kept, activity / background, ESR, event-frame consistency), beside the
+    study's own test split."""
+    import tempfile
+
+    import torch
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from restore_learned_eval import eval_pairs
+    from restore_train_range import write_results
+    from restore_training_scenes import score_real_recordings
+
+    from rdnet.config import load_params
+    from rdnet.study.data import sequences
+    from rdnet.study.independent import circuit_pairs
+
+    torch.set_num_threads(1)
+    params = load_params(ROOT / "params.yaml")
+    ckpts = dict(item.split("=", 1) for item in args.ckpt)
+    ckpts = {k: Path(v) for k, v in ckpts.items()}
+    res = {"checkpoints": {k: str(v) for k, v in ckpts.items()}, "splits": {}}
+    with tempfile.TemporaryDirectory() as tmp:
+        circuit, _ = circuit_pairs(params, sequences(ROOT / "data" / "events", "test"), Path(tmp), 0)
+        for split, pairs in (("test", ROOT / "data" / "pairs" / "test.h5"), ("test, circuit", circuit)):
+            scored = eval_pairs(pairs, ckpts)
+            res["splits"][split] = {k: {m: scored[k][m] for m in METRICS} for k in ("raw", *ckpts)}
+        res["real"] = score_real_recordings(["davis346_road"], params, lambda rec: ckpts, Path(tmp))
+
+    def render(r: dict) -> str:
+        names = ["raw", *r["checkpoints"]]
+        lines = ["Image-guided count stage 1 checkpoints of `restore_scale.py` scored on the study's test split, "
+                 "on the same sequences rendered by the independent circuit generator (one draw) and on the "
+                 "real DAVIS346 recording (after the hot-pixel pass, as `restore_real` scores it).", "",
+                 "| checkpoint | test F1 / count ratio / all-voxel L1 | circuit F1 / count ratio / all-voxel L1 | "
+                 "DAVIS346 events kept | DAVIS346 consistency R^2 | DAVIS346 ESR |", "|---|---|---|---:|---:|---:|"]
+        real = r["real"].get("davis346_road", {}).get("methods", {})
+        for n in names:
+            cells = [" / ".join(f"{r['splits'][s][n][m]:.3f}" for m in ("f1", "count_ratio", "l1_all"))
+                     for s in ("test", "test, circuit")]
+            m = real.get(n)
+            cells += ([f"{100 * m['kept_fraction']:.1f} %", f"{m['consistency_r2']:.3f}", f"{m['esr']:.3f}"]
+                      if m else ["-", "-", "-"])
+            lines.append(f"| {n} | " + " | ".join(cells) + " |")
+        return "\n".join(lines) + "\n"
+    write_results(args.out, res, render)
+
+
 def main() -> None:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -248,8 +297,13 @@ def main() -> None:
     r.add_argument("--work", type=Path, default=Path("/tmp/restore_scale"))
     r.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "restore_scale.json")
     r.add_argument("--table-only", action="store_true", help="only rewrite OUT.md from OUT (.json)")
+    q = sub.add_parser("score", help="checkpoints on the circuit generator's test split and on DAVIS346")
+    q.add_argument("--ckpt", action="append", required=True, help="NAME=PATH of a trained checkpoint")
+    q.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "restore_scale_independent.json")
     args = ap.parse_args()
-    if args.cmd in ("pack", "unpack"):
+    if args.cmd == "score":
+        score(args)
+    elif args.cmd in ("pack", "unpack"):
         (pack if args.cmd == "pack" else unpack)(args.src, args.dst)
     elif args.cmd == "data":
         args.work.mkdir(parents=True, exist_ok=True)
