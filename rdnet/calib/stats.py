@@ -375,9 +375,9 @@ def xcorr_lag_us(sim: np.ndarray, real: np.ndarray, mask: np.ndarray, bin_us: fl
     through the peak and its neighbours. Positive = real events come later."""
     a = np.where(mask, sim - sim[mask].mean() if mask.any() else 0.0, 0.0)
     b = np.where(mask, real - real[mask].mean() if mask.any() else 0.0, 0.0)
-    L = int(min(len(a) - 1, max(1, round(max_lag_us / bin_us))))    # < 1 only for a single bin
-    if not a.any() or not b.any() or L < 1:
+    if not a.any() or not b.any():      # also every series of one bin (nothing left after the mean)
         return 0.0
+    L = int(min(len(a) - 1, max(1, round(max_lag_us / bin_us))))
     return peak_lag_us(_lagged_dots(a, b, L), np.arange(-L, L + 1), bin_us)
 
 
