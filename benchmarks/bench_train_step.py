@@ -32,12 +32,12 @@ import time
 from pathlib import Path
 
 import torch
-from torch import nn
 from torch.utils.data import DataLoader
 
 from rdnet.train.config import ModelConfig, TrainConfig
 from rdnet.train.data import PairsDataset, StepSampler, split_rows
-from rdnet.train.loop import RESTORE_TASKS, build_seeded, compute_loss, make_optimizer, model_args, resolve_device
+from rdnet.train.loop import (RESTORE_TASKS, build_seeded, compute_loss, make_optimizer, model_args, optimizer_step,
+                              resolve_device)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -66,12 +66,7 @@ def measure(task: str, size: str, crop: int, batch: int, device_name: str, pairs
         loss, _ = compute_loss(task, net, batch, cfg)
         if check and not torch.isfinite(loss):
             raise FloatingPointError("non-finite loss")
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        if cfg.grad_clip > 0:
-            nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
-        opt.step()
-        sched.step()
+        optimizer_step(net, opt, sched, loss, cfg.grad_clip)
         return loss
 
     def loader():

@@ -188,6 +188,17 @@ def make_optimizer(task: str, net: nn.Module, cfg: TrainConfig):
     return opt, sched
 
 
+def optimizer_step(net: nn.Module, opt, sched, loss: torch.Tensor, grad_clip: float) -> None:
+    """One update from ``loss``: gradients of ``net`` (clipped to norm ``grad_clip`` when > 0),
+    the optimiser's step and the schedule's."""
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    if grad_clip > 0:
+        nn.utils.clip_grad_norm_(net.parameters(), grad_clip)
+    opt.step()
+    sched.step()
+
+
 def _median_window_us(path: str | Path, rows) -> int | None:
     """Median exposure window (column ``duration_us``) of the training rows: the window
     length a stage-1 network was trained for (None when the file has no such column)."""
@@ -495,12 +506,7 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
             loss, parts = compute_loss(task, model, batch, cfg)
             if not torch.isfinite(loss):
                 raise FloatingPointError(f"non-finite loss {loss.item()} at step {step}")
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            if cfg.grad_clip > 0:
-                nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
-            opt.step()
-            sched.step()
+            optimizer_step(net, opt, sched, loss, cfg.grad_clip)
             step += 1
             for k, v in parts.items():
                 sums[k] = sums.get(k, 0) + v.float()
