@@ -1,7 +1,6 @@
 """``rdnet calibrate``: exit codes, clear errors on bad input, output files."""
 import json
 
-import numpy as np
 import pytest
 
 import rdnet.cli as cli

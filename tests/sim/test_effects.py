@@ -6,7 +6,7 @@ import pytest
 
 from rdnet.config import from_dict
 from rdnet.errors import ConfigError
-from rdnet.events.core import EVENT_DTYPE, Events, concatenate
+from rdnet.events.core import EVENT_DTYPE, concatenate
 from rdnet.sim import effects
 from rdnet.sim.sensor import Sensor, apply_timing
 from rdnet.sim.settings import DegradeConfig, RandomizeConfig, SensorConfig
