@@ -194,8 +194,9 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
         "rule": ("nuisance choice before any effect is named: the frames are upsampled with each "
                  "method, the configured parameters re-fitted and every left-out effect screened on "
                  "each; kept: the lowest reachable fit-segment discrepancy (basic refit, lowered by the "
-                 "share its best screened effect removes), so an interpolation cannot win by mimicking a "
-                 "missing effect; effects are tested on the kept one only"),
+                 "share its best screened effect removes, that effect refined between its grid points), so "
+                 "an interpolation cannot win by mimicking a missing effect; effects are tested on the kept "
+                 "one only"),
         "level": "search pixel sample, search seeds",
         "candidates": candidates,
     }

@@ -577,15 +577,47 @@ def screen_gains(search: Objective, fine: Objective, values: dict, beta: float) 
     ``search``). The evaluations are memoised, so the forward selection's first round
     reuses them."""
     cfg = search.ctx.cfg
-    out = {}
+    out, screens = {}, {}
     for eff in absent_effects(search.degrade):
         if cfg.candidates and eff.name not in cfg.candidates:
             continue
         obj = fine if all(additive(p) for p in eff.params) else search
-        evs, _, _ = screen(obj, values, eff, cfg.search_points, beta)
+        evs, grid, keep = screen(obj, values, eff, cfg.search_points, beta)
         ref = obj(values).fit_mean
         out[eff.name] = (ref - min(e.fit_mean for e in evs)) / max(ref, 1e-12)
+        screens[eff.name] = (eff, obj, evs, grid, keep, ref)
+    if out:
+        # the best one fitted as the forward selection's first fit step would: a grid point
+        # is a factor of about 7 from the next (5 points over [20, 50000] us), so the best
+        # grid point can miss most of what the effect explains, and an interpolation whose
+        # error happens to sit near a grid point would win; a data-driven guess is refined
+        # too, so that neither kind of screen is favoured (memoised for the interpolation kept)
+        eff, obj, evs, grid, keep, ref = screens[max(out, key=out.get)]
+        v = first_fit(obj, values, eff, evs, grid, keep, beta)
+        out[eff.name] = max(out[eff.name], (ref - obj(v).fit_mean) / max(ref, 1e-12))
     return out
+
+
+def first_fit(obj: Objective, values: dict, effect: Effect, screened: list[Evaluation],
+              grid: np.ndarray | None, keep: np.ndarray | None, beta: float) -> dict:
+    """The first step of :func:`fit_effect`: the best point of :func:`screen` (with the shape
+    parameters read off the recording, :func:`shape_estimate`), its main parameter refined
+    by a golden section between the neighbouring grid points and the others over their
+    range (a grid screen), or every parameter within a factor of 3 of the data-driven guess
+    (count-matched thresholds when the effect changes the count)."""
+    cfg = obj.ctx.cfg
+    f = Compensated(obj, beta) if effect.changes_count else obj
+    i = int(np.argmin([e.fit_mean for e in screened]))
+    v = dict(screened[i].values)
+    v.update(shape_estimate(obj, values, effect))   # else the guess's, or the declared value
+    if grid is None:
+        return refine(f, v, list(effect.params), rounds=1, steps=cfg.refine_steps, factor=3.0)
+    p = effect.params[0]
+    i = int(keep[i])
+    v = golden(f, v, p.key, grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)], cfg.refine_steps)
+    for q in effect.params[1:]:
+        v = golden(f, v, q.key, q.lo, q.hi, cfg.refine_steps)
+    return v
 
 
 def rescreen(obj: Objective, values: dict, effect: Effect, previous: dict, beta: float) -> list[Evaluation]:
@@ -607,24 +639,14 @@ def fit_effect(obj: Objective, values: dict, effect: Effect, screened: list[Eval
     later round, starting from the effect's previous fit (a narrower first refinement)."""
     cfg = obj.ctx.cfg
     f = Compensated(obj, beta) if effect.changes_count else obj
-    i = int(np.argmin([e.fit_mean for e in screened]))
-    v = dict(screened[i].values)
-    v.update(shape_estimate(obj, values, effect))   # else the guess's, or the declared value
-    tuning = []
-    if grid is not None:
-        p = effect.params[0]
-        i = int(keep[i])
-        lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
-        v = golden(f, v, p.key, lo, hi, cfg.refine_steps)
-        for q in effect.params[1:]:
-            v = golden(f, v, q.key, q.lo, q.hi, cfg.refine_steps)
-        v, tuning = _fit_tuning(f, obj, v, effect)
-    elif refit:     # from the previous fit, its tuning included when it was kept
+    if refit and grid is None:  # from the previous fit, its tuning included when it was kept
+        i = int(np.argmin([e.fit_mean for e in screened]))
+        v = dict(screened[i].values)
+        v.update(shape_estimate(obj, values, effect))
         tuning = [q for q in effect.tuning if q.key in v]
         v = refine(f, v, list(effect.params) + tuning, rounds=1, steps=max(2, cfg.refine_steps - 1), factor=1.6)
     else:
-        v = refine(f, v, list(effect.params), rounds=1, steps=cfg.refine_steps, factor=3.0)
-        v, tuning = _fit_tuning(f, obj, v, effect)
+        v, tuning = _fit_tuning(f, obj, first_fit(obj, values, effect, screened, grid, keep, beta), effect)
     present = present_params(obj)
     if not thresholds:          # an additive effect on the final sample: no pixel-circuit reruns
         present = [p for p in present if additive(p)]

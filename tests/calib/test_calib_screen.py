@@ -1,0 +1,57 @@
+"""The round-1 screen that the frame-interpolation choice reads (``screen_gains``): the
+best effect's gain is measured between its grid points, not only at them."""
+import math
+from types import SimpleNamespace
+
+import pytest
+
+from rdnet.calib.effects import EFFECTS
+from rdnet.calib.fit import first_fit, screen, screen_gains
+from rdnet.calib.settings import CalibrateConfig
+from rdnet.sim.settings import DegradeConfig
+
+TRUE_US = 2000.0        # between the grid points 1000 and 7071 us of [20, 50000], 5 points
+BASE_FIT = 3.0          # the fit discrepancy without the effect
+
+
+class Landscape:
+    """An objective whose fit discrepancy is lowest at refractory_us = TRUE_US (squared log
+    error), counting its evaluations; the simulated count always matches the recording, so
+    the count-matched thresholds never move."""
+
+    def __init__(self):
+        self.ctx = SimpleNamespace(cfg=CalibrateConfig(candidates=["refractory_period"]))
+        self.degrade = DegradeConfig()
+        self.real_fit_count = 1000.0
+        self.calls = []
+
+    def __call__(self, values):
+        self.calls.append(dict(values))
+        r = values.get("refractory_us", 0.0)
+        fit = BASE_FIT if r <= 0 else 1.0 + math.log(r / TRUE_US) ** 2
+        return SimpleNamespace(values=dict(values), fit_mean=fit, held_mean=fit, fit_count=self.real_fit_count)
+
+
+def test_the_reach_is_measured_between_grid_points():
+    obj = Landscape()
+    evs, grid, keep = screen(obj, {}, EFFECTS["refractory_period"], 5, 1.0)
+    assert grid[2] == pytest.approx(1000.0) and grid[3] == pytest.approx(7071.07, rel=1e-4)
+    at_grid = (BASE_FIT - min(e.fit_mean for e in evs)) / BASE_FIT
+    assert at_grid == pytest.approx((2.0 - math.log(2.0) ** 2) / 3.0)         # at 1000 us
+    gains = screen_gains(obj, obj, {}, 1.0)
+    v = first_fit(obj, {}, EFFECTS["refractory_period"], evs, grid, keep, 1.0)
+    assert 1400.0 < v["refractory_us"] < 2900.0                             # 4 golden steps in [141, 7071]
+    assert gains["refractory_period"] == pytest.approx((BASE_FIT - obj(v).fit_mean) / BASE_FIT)
+    assert gains["refractory_period"] > at_grid + 0.1
+
+
+
+
+def test_a_guess_is_refined_within_a_factor_of_three():
+    """A screen point from a data-driven guess (no grid) is refined around the guess, as the
+    forward selection's fit does, so neither kind of screen is favoured by the choice."""
+    obj = Landscape()
+    guess = obj({"refractory_us": 1000.0})
+    v = first_fit(obj, {}, EFFECTS["refractory_period"], [guess], None, None, 1.0)
+    assert 1000.0 < v["refractory_us"] <= 3000.0
+    assert obj(v).fit_mean < guess.fit_mean - 0.3
