@@ -45,3 +45,13 @@ def test_every_docs_page_is_listed_in_readme():
     section = readme.split("## Documentation", 1)[1]
     missing = [p.name for p in PAGES[1:] if f"docs/{p.name}" not in section]
     assert not missing, f"docs pages not listed under README's Documentation: {missing}"
+
+
+@pytest.mark.parametrize("table, markers", [("results/ablation.md", ("README_START", "README_END")),
+                                            ("results/calibration_goals.md", ("CALIBRATION_START", "CALIBRATION_END"))])
+def test_readme_tables_are_the_generated_ones(table, markers):
+    """README's generated tables are the committed outputs of the report stage, verbatim
+    (`python stages/report.py --sync-readme` after `dvc repro report`)."""
+    from rdnet.study import report
+    start, end = (getattr(report, m) for m in markers)
+    assert report.readme_block((ROOT / "README.md").read_text(), start, end) == (ROOT / table).read_text()

@@ -536,5 +536,30 @@ def format_table(metrics: dict) -> str:
     return "\n".join(rows)
 
 
+
+#: (summary key, column) of :func:`goals_table`, in the order of the issue's goals
+GOAL_COLUMNS = (("named_right_first", "named first"), ("ranked_first", "ranked first"),
+                ("params_within_25pct", "parameters within 25 %"), ("heldout_halved", "held-out halved"),
+                ("heldout_excess_over_noise_floor_halved", "excess over noise floor halved"))
+
+
+def goals_table(metrics: dict) -> str:
+    """The proof against the goals of issue 12, one row per block and a total row, from
+    the ``calibration_proof`` stage's metrics (``metrics/calibration_proof.json``: the
+    rdnet block's ``summary`` at the top level, the other blocks' under their keys)."""
+    blocks = [("rdnet", metrics["summary"])] + [(k, v["summary"]) for k, v in metrics.items()
+                                                 if isinstance(v, dict) and "summary" in v]
+    head = ["block", "concealed"] + [c for _, c in GOAL_COLUMNS] + ["nulls naming nothing"]
+    lines = ["| " + " | ".join(head) + " |", "|---|" + "---:|" * (len(head) - 1)]
+    total = dict.fromkeys([k for k, _ in GOAL_COLUMNS] + ["concealed_cases", "null_cases", "null_named_nothing"], 0)
+    for name, s in blocks + [("all", total)]:
+        if name != "all":
+            for k in total:
+                total[k] += int(s[k])
+        cells = [name, str(s["concealed_cases"])] + [str(s[k]) for k, _ in GOAL_COLUMNS]
+        cells.append(f"{s['null_named_nothing']} of {s['null_cases']}")
+        lines.append("| " + " | ".join(f"**{c}**" if name == "all" else c for c in cells) + " |")
+    return "\n".join(lines) + "\n"
+
 if __name__ == "__main__":  # pragma: no cover
     raise SystemExit(main())
