@@ -1,28 +1,22 @@
 """Stage `report`: results/ablation.md (table from the metrics, with the paper's numbers
-and gaps, and the same on the independent circuit generator's events), figures (PSNR per
-row, PSNR against degradation level, sample grid) and results/calibration_goals.md (the
-calibration proof against issue 12's goals, from metrics/calibration_proof.json).
-`python stages/report.py --sync-readme` copies both tables into README.md."""
+and gaps, and the same on the independent circuit generator's events) and figures (PSNR per
+row, PSNR against degradation level, sample grid). `python stages/report.py --sync-readme`
+copies that table and results/calibration_goals.md (stage `calibration_goals`) into README.md."""
 from pathlib import Path
 
 import _common
 
 
 def main(args, params):
-    import json
-
-    from rdnet.calib.proof import goals_table
-    from rdnet.eval.report import write_text_atomic
     from rdnet.study.report import CALIBRATION_END, CALIBRATION_START, sync_readme, write_report
     rows = (params.get("ablation") or {}).get("rows", {})
     order = list(rows)
-    goals = args.out / "calibration_goals.md"
+    goals = args.out / "calibration_goals.md"      # the calibration_goals stage's
     if args.sync_readme:
         changed = sync_readme(Path("README.md"), (args.out / "ablation.md").read_text())
         changed |= sync_readme(Path("README.md"), goals.read_text(), CALIBRATION_START, CALIBRATION_END)
         print("README.md updated" if changed else "README.md already up to date")
         return
-    write_text_atomic(goals, goals_table(json.loads(args.calibration.read_text())))
     write_report(args.details, args.restoration, args.out, order,
                  checkpoints={rid: r.get("checkpoint") for rid, r in rows.items()}, circuit_path=args.circuit)
     if args.samples:
@@ -35,8 +29,6 @@ p.add_argument("--details", type=Path, default=Path("results/rows"))
 p.add_argument("--restoration", type=Path, default=Path("metrics/restoration.json"))
 p.add_argument("--circuit", type=Path, default=Path("metrics/restoration_circuit.json"),
                help="the rows on the independent generator's events (a column when present)")
-p.add_argument("--calibration", type=Path, default=Path("metrics/calibration_proof.json"),
-               help="the calibration_proof stage's metrics (results/calibration_goals.md)")
 p.add_argument("--pairs", type=Path, default=Path("data/pairs/test.h5"))
 p.add_argument("--out", type=Path, default=Path("results"))
 p.add_argument("--samples", action="store_true", help="also draw results/samples.png")
