@@ -536,7 +536,6 @@ def format_table(metrics: dict) -> str:
     return "\n".join(rows)
 
 
-
 #: (summary key, column) of :func:`goals_table`, in the order of the issue's goals
 GOAL_COLUMNS = (("named_right_first", "named first"), ("ranked_first", "ranked first"),
                 ("params_within_25pct", "parameters within 25 %"), ("heldout_halved", "held-out halved"),
@@ -560,6 +559,7 @@ def goals_table(metrics: dict) -> str:
         cells.append(f"{s['null_named_nothing']} of {s['null_cases']}")
         lines.append("| " + " | ".join(f"**{c}**" if name == "all" else c for c in cells) + " |")
     return "\n".join(lines) + "\n"
+
 
 if __name__ == "__main__":  # pragma: no cover
     raise SystemExit(main())
