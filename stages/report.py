@@ -11,10 +11,10 @@ def main(args, params):
     from rdnet.study.report import CALIBRATION_END, CALIBRATION_START, sync_readme, write_report
     rows = (params.get("ablation") or {}).get("rows", {})
     order = list(rows)
-    goals = args.out / "calibration_goals.md"      # the calibration_goals stage's
-    if args.sync_readme:
+    if args.sync_readme:      # calibration_goals.md: the calibration_goals stage's
         changed = sync_readme(Path("README.md"), (args.out / "ablation.md").read_text())
-        changed |= sync_readme(Path("README.md"), goals.read_text(), CALIBRATION_START, CALIBRATION_END)
+        changed |= sync_readme(Path("README.md"), (args.out / "calibration_goals.md").read_text(),
+                               CALIBRATION_START, CALIBRATION_END)
         print("README.md updated" if changed else "README.md already up to date")
         return
     write_report(args.details, args.restoration, args.out, order,

@@ -607,9 +607,7 @@ def first_fit(obj: Objective, values: dict, effect: Effect, screened: list[Evalu
     (count-matched thresholds when the effect changes the count)."""
     cfg = obj.ctx.cfg
     f = Compensated(obj, beta) if effect.changes_count else obj
-    i = int(np.argmin([e.fit_mean for e in screened]))
-    v = dict(screened[i].values)
-    v.update(shape_estimate(obj, values, effect))   # else the guess's, or the declared value
+    i, v = _screen_start(obj, values, effect, screened)
     if grid is None:
         return refine(f, v, list(effect.params), rounds=1, steps=cfg.refine_steps, factor=3.0)
     p = effect.params[0]
@@ -618,6 +616,15 @@ def first_fit(obj: Objective, values: dict, effect: Effect, screened: list[Evalu
     for q in effect.params[1:]:
         v = golden(f, v, q.key, q.lo, q.hi, cfg.refine_steps)
     return v
+
+
+def _screen_start(obj: Objective, values: dict, effect: Effect, screened: list[Evaluation]) -> tuple[int, dict]:
+    """The index of the best point of :func:`screen` and its values with the shape parameters
+    read off the recording (:func:`shape_estimate`; else the guess's, or the declared value)."""
+    i = int(np.argmin([e.fit_mean for e in screened]))
+    v = dict(screened[i].values)
+    v.update(shape_estimate(obj, values, effect))
+    return i, v
 
 
 def rescreen(obj: Objective, values: dict, effect: Effect, previous: dict, beta: float) -> list[Evaluation]:
@@ -640,9 +647,7 @@ def fit_effect(obj: Objective, values: dict, effect: Effect, screened: list[Eval
     cfg = obj.ctx.cfg
     f = Compensated(obj, beta) if effect.changes_count else obj
     if refit and grid is None:  # from the previous fit, its tuning included when it was kept
-        i = int(np.argmin([e.fit_mean for e in screened]))
-        v = dict(screened[i].values)
-        v.update(shape_estimate(obj, values, effect))
+        _, v = _screen_start(obj, values, effect, screened)
         tuning = [q for q in effect.tuning if q.key in v]
         v = refine(f, v, list(effect.params) + tuning, rounds=1, steps=max(2, cfg.refine_steps - 1), factor=1.6)
     else:

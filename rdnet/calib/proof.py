@@ -550,11 +550,9 @@ def goals_table(metrics: dict) -> str:
                                                  if isinstance(v, dict) and "summary" in v]
     head = ["block", "concealed"] + [c for _, c in GOAL_COLUMNS] + ["nulls naming nothing"]
     lines = ["| " + " | ".join(head) + " |", "|---|" + "---:|" * (len(head) - 1)]
-    total = dict.fromkeys([k for k, _ in GOAL_COLUMNS] + ["concealed_cases", "null_cases", "null_named_nothing"], 0)
+    keys = [k for k, _ in GOAL_COLUMNS] + ["concealed_cases", "null_cases", "null_named_nothing"]
+    total = {k: sum(int(s[k]) for _, s in blocks) for k in keys}
     for name, s in blocks + [("all", total)]:
-        if name != "all":
-            for k in total:
-                total[k] += int(s[k])
         cells = [name, str(s["concealed_cases"])] + [str(s[k]) for k, _ in GOAL_COLUMNS]
         cells.append(f"{s['null_named_nothing']} of {s['null_cases']}")
         lines.append("| " + " | ".join(f"**{c}**" if name == "all" else c for c in cells) + " |")
