@@ -21,9 +21,12 @@ study ``model`` and ``train`` settings, 800 iterations, on ``data/pairs/train.h5
   as stage ``restore_real`` scores them: image-guided where the recording has frames,
   events-only elsewhere).
 
-Writes ``benchmarks/results/restore_clean_fraction.{json,md}``.
+Writes ``benchmarks/results/restore_clean_fraction.{json,md}``. ``--key`` varies another
+``train`` key the same way (``--values``; the same scores), e.g. the count head's loss::
 
     .venv/bin/python benchmarks/restore_clean_fraction.py [--fractions 0 0.2 0.4] [--seeds 0]
+    .venv/bin/python benchmarks/restore_clean_fraction.py --key train.count_loss --values l1 poisson \
+        --out benchmarks/results/restore_count_loss.json
 """
 from __future__ import annotations
 
@@ -89,24 +92,32 @@ def real_scores(params: dict, ckpts: dict[str, dict[str, Path]], tmp: Path) -> d
     return out
 
 
+def _label(value) -> str:
+    """A variant's value as the tables show it (numbers with ``:g``)."""
+    return format(value, "g") if isinstance(value, (int, float)) else str(value)
+
+
 def markdown(res: dict) -> str:
-    L = [f"Stage-1 restorers trained with identity pairs (`train.clean_fraction`; {res['command']}, "
-         f"{res['seconds'] / 60:.0f} min, seed(s) {res['seeds']}). {res.get('study_fraction', 0.0):g} = the study's "
-         "committed checkpoints when the script ran (`models/restore_*`), the others trained by it.", ""]
+    key = res.get("key", "train.clean_fraction")
+    name = key.split(".")[-1]
+    what = "with identity pairs" if key == "train.clean_fraction" else "at each value"
+    L = [f"Stage-1 restorers trained {what} (`{key}`; {res['command']}, "
+         f"{res['seconds'] / 60:.0f} min, seed(s) {res['seeds']}). {_label(res.get('study_fraction', 0.0))} = the "
+         "study's committed checkpoints when the script ran (`models/restore_*`), the others trained by it.", ""]
     L += ["**Simulated test split** (the study's event metrics; image-guided / events-only)", "",
-          "| clean_fraction | seed | F1 | count ratio | all-voxel L1 | decision threshold |", "|---|---|---|---|---|---|"]
+          f"| {name} | seed | F1 | count ratio | all-voxel L1 | decision threshold |", "|---|---|---|---|---|---|"]
     raw = res["raw_test"]
     L.append(f"| raw | - | {raw['f1']:.3f} | {raw['count_ratio']:.2f} | {raw['l1_all']:.4f} | - |")
     for v in res["variants"]:
         t = v["test"]
-        L.append(f"| {v['fraction']:g} | {v['seed']} | {t['image']['f1']:.3f} / {t['events']['f1']:.3f} | "
+        L.append(f"| {_label(v['fraction'])} | {v['seed']} | {t['image']['f1']:.3f} / {t['events']['f1']:.3f} | "
                  f"{t['image']['count_ratio']:.2f} / {t['events']['count_ratio']:.2f} | "
                  f"{t['image']['l1_all']:.4f} / {t['events']['l1_all']:.4f} | "
                  f"{t['image']['threshold']:.3f} / {t['events']['threshold']:.3f} |")
     L += ["", "**Recordings built from the test split** (`rdnet restore` on the degraded events, on the undegraded "
           "events as input, and on one circuit-generator rendering): consistency R^2 minus the raw stream's, count "
           "ratio against the undegraded events, F1 (image-guided / events-only)", "",
-          "| clean_fraction | seed | rdnet: dR^2 | rdnet: count ratio | clean input: dR^2 | clean input: count ratio | "
+          f"| {name} | seed | rdnet: dR^2 | rdnet: count ratio | clean input: dR^2 | clean input: count ratio | "
           "clean input: F1 | circuit: dR^2 | circuit: count ratio |", "|---|---|---|---|---|---|---|---|---|"]
     for v in res["variants"]:
         s = v["simulated"]
@@ -114,14 +125,14 @@ def markdown(res: dict) -> str:
         def pair(group, key, fmt):
             st = s[group]["streams"]
             return " / ".join(format(st[f"rdnet-{k}"][key], fmt) for k in ("image", "events"))
-        L.append(f"| {v['fraction']:g} | {v['seed']} | {pair('rdnet', 'r2_minus_raw', '+.3f')} | "
+        L.append(f"| {_label(v['fraction'])} | {v['seed']} | {pair('rdnet', 'r2_minus_raw', '+.3f')} | "
                  f"{pair('rdnet', 'count_ratio', '.2f')} | {pair('clean input', 'r2_minus_raw', '+.3f')} | "
                  f"{pair('clean input', 'count_ratio', '.2f')} | {pair('clean input', 'f1', '.3f')} | "
                  f"{pair('circuit', 'r2_minus_raw', '+.3f')} | {pair('circuit', 'count_ratio', '.2f')} |")
     names = sorted({n for v in res["variants"] for n in v["real"]})
     L += ["", "**Real recordings** (as stage `restore_real` scores them; image-guided where the recording has "
           "frames): events kept, activity / background kept, consistency R^2 (raw DAVIS346: 0.348)", "",
-          "| clean_fraction | seed | " + " | ".join(names) + " |", "|---|---|" + "---|" * len(names)]
+          f"| {name} | seed | " + " | ".join(names) + " |", "|---|---|" + "---|" * len(names)]
 
     def cell(r):
         if r is None:
@@ -131,13 +142,15 @@ def markdown(res: dict) -> str:
         return (f"{100 * r['kept']:.1f} %: {100 * r['activity_kept']:.1f} / {100 * r['background_kept']:.1f} %"
                 + hot + c)
     for v in res["variants"]:
-        L.append(f"| {v['fraction']:g} | {v['seed']} | " + " | ".join(cell(v["real"].get(n)) for n in names) + " |")
+        L.append(f"| {_label(v['fraction'])} | {v['seed']} | " + " | ".join(cell(v["real"].get(n)) for n in names) + " |")
     return "\n".join(L) + "\n"
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--fractions", type=float, nargs="*", default=[0.0, 0.2, 0.4])
+    ap.add_argument("--key", default="train.clean_fraction", help="the train key to vary")
+    ap.add_argument("--values", "--fractions", dest="values", nargs="*", default=["0", "0.2", "0.4"],
+                    help="its values (YAML scalars); the value of params.yaml is the study's checkpoints")
     ap.add_argument("--seeds", type=int, nargs="*", default=[0])
     ap.add_argument("--parallel", type=int, default=2, help="trainings at once (1 thread each)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "restore_clean_fraction.json")
@@ -152,33 +165,39 @@ def main() -> int:
     from rdnet.config import load_params
     torch.set_num_threads(1)
     params = load_params(ROOT / "params.yaml")
-    study_fraction = float(params["train"].get("clean_fraction", 0.0))
+    import yaml
+    section_name, key = args.key.split(".", 1)
+    if section_name != "train" or key not in params["train"]:
+        ap.error(f"--key {args.key}: not a key of params.yaml's train section")
+    values = [yaml.safe_load(v) for v in args.values]
+    study_fraction = params["train"][key]
     iterations = int(params["train"]["iterations"])
     start = time.perf_counter()
-    res = {"command": "python benchmarks/restore_clean_fraction.py --fractions "
-                      + " ".join(f"{f:g}" for f in args.fractions) + " --seeds " + " ".join(map(str, args.seeds)),
-           "seeds": args.seeds, "study_fraction": study_fraction, "variants": []}
+    command = "python benchmarks/restore_clean_fraction.py " + (
+        f"--key {args.key} --values " if args.key != "train.clean_fraction" else "--fractions ")
+    res = {"command": command + " ".join(map(_label, values)) + " --seeds " + " ".join(map(str, args.seeds)),
+           "key": args.key, "seeds": args.seeds, "study_fraction": study_fraction, "variants": []}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         jobs, ckpts = [], {}
-        for f in args.fractions:
+        for f in values:
             for seed in args.seeds:
                 for kind, task in TASKS.items():
                     if f == study_fraction:
                         ckpts[(f, seed, kind)] = ROOT / "models" / STUDY_MODELS[kind] / f"seed{seed}" / "model.pt"
                     else:
-                        jobs.append(((f, seed, kind), task, seed, tmp / f"cf{f:g}_{task}_seed{seed}", f))
+                        jobs.append(((f, seed, kind), task, seed, tmp / f"v{_label(f)}_{task}_seed{seed}", f))
         pairs = ROOT / "data" / "pairs" / "train.h5"
         with ThreadPoolExecutor(max_workers=args.parallel) as pool:
-            done = pool.map(lambda j: train(j[1], pairs, j[3], j[2], iterations, [f"train.clean_fraction={j[4]}"]),
+            done = pool.map(lambda j: train(j[1], pairs, j[3], j[2], iterations, [f"{args.key}={j[4]}"]),
                             jobs)
             for key, (path, _) in zip([j[0] for j in jobs], done):
                 ckpts[key] = path
         log.info("trained %d restorers in %.0f s", len(jobs), time.perf_counter() - start)
         scored = eval_pairs(ROOT / "data" / "pairs" / "test.h5",
-                            {f"{f:g}/{s}/{k}": p for (f, s, k), p in ckpts.items()}, [])
+                            {f"{_label(f)}/{s}/{k}": p for (f, s, k), p in ckpts.items()}, [])
         res["raw_test"] = {m: scored["raw"][m] for m in ("f1", "count_ratio", "l1_all")}
-        variants = {f"{f:g}/{seed}": (f, seed) for f in args.fractions for seed in args.seeds}
+        variants = {f"{_label(f)}/{seed}": (f, seed) for f in values for seed in args.seeds}
         by_variant = {v: {k: ckpts[(f, seed, k)] for k in TASKS} for v, (f, seed) in variants.items()}
         srcs = sources("rdnet", params, tmp, 0, ()) + sources("clean", params, tmp, 0, ()) + \
             sources("circuit", params, tmp, 1, ())                  # the circuit draw rendered once

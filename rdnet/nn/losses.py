@@ -30,8 +30,13 @@ Count output (not in the paper; ``train.restore_output: counts``,
 :class:`rdnet.nn.models.RestoreNet` with ``output="counts"``), per polarity voxel with
 occupancy logit ``z``, count given occupied ``mu`` and undegraded count ``u``::
 
-    L = occupancy_weight * mean_all BCE(z, [u > 0]) + alpha * masked L1(mu - u; u > 0)
+    L = occupancy_weight * mean_all BCE(z, [u > 0]) + alpha * masked C(mu, u; u > 0)
 
+with the count term ``C`` (``train.count_loss``) either the L1 ``|mu - u|`` (default; it
+aims ``mu`` at the *median* count of an occupied voxel, as the paper's L1 does for the
+signed voxel) or the Poisson half-deviance ``mu - u + u log(u / mu)`` (zero at ``mu = u``,
+gradient ``1 - u / mu``; it aims ``mu`` at the *mean* count, which a count ratio of one
+needs: counts are skewed to the right, so their median is below their mean).
 The occupancy term covers EVERY voxel, so a voxel without undegraded events is pushed to
 "empty" (the masked loss above leaves it free, which is why rounding the signed output
 invents events); ``mu`` is the count where events are, learnt only there.
@@ -48,10 +53,15 @@ import torch.nn.functional as F
 FeatureFn = Callable[[torch.Tensor], Sequence[torch.Tensor]]
 
 
+def masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """``sum(values * mask) / max(sum(mask), 1)``; ``mask`` broadcasts against ``values``."""
+    mask = mask.to(values.dtype).expand_as(values)
+    return (values * mask).sum() / mask.sum().clamp_min(1.0)
+
+
 def masked_l1(diff: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """``sum(|diff| * mask) / max(sum(mask), 1)``; ``mask`` broadcasts against ``diff``."""
-    mask = mask.to(diff.dtype).expand_as(diff)
-    return (diff.abs() * mask).sum() / mask.sum().clamp_min(1.0)
+    """``sum(|diff| * mask) / max(sum(mask), 1)`` (:func:`masked_mean` of ``|diff|``)."""
+    return masked_mean(diff.abs(), mask)
 
 
 def event_mask(undegraded: torch.Tensor, degraded: torch.Tensor) -> torch.Tensor:
@@ -102,23 +112,39 @@ def restoration_loss(restored: torch.Tensor, undegraded: torch.Tensor, degraded:
     return loss
 
 
+def poisson_half_deviance(mu: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """``mu - t + t log(t / mu)`` per element (``t log t = 0`` at ``t = 0``): the Poisson
+    negative log-likelihood of ``t`` at rate ``mu`` less its minimum, so >= 0 and 0 at
+    ``mu = t``; minimised in expectation by ``mu = E[t]``. ``mu`` must be positive."""
+    t = target.to(mu.dtype)
+    return mu - t + torch.xlogy(t, t) - t * torch.log(mu)
+
+
 def count_loss_terms(mu: torch.Tensor, logit: torch.Tensor, undegraded: torch.Tensor,
-                     ) -> dict[str, torch.Tensor]:
+                     count_loss: str = "l1") -> dict[str, torch.Tensor]:
     """Unweighted terms of the count-output loss (module docstring): ``occupancy`` (BCE
-    over every voxel) and ``count`` (L1 of mu where the undegraded voxel has events).
+    over every voxel) and ``count`` (``count_loss`` of mu where the undegraded voxel has
+    events: ``l1`` or ``poisson``).
     All tensors are per-polarity grids of one shape, e.g. (B, 2 * bins, H, W)."""
     if mu.shape != undegraded.shape or logit.shape != undegraded.shape:
         raise ValueError(f"shapes differ: mu {tuple(mu.shape)}, logit {tuple(logit.shape)}, "
                          f"undegraded {tuple(undegraded.shape)}")
     occupied = undegraded > 0
+    if count_loss == "l1":
+        count = masked_l1(mu - undegraded, occupied)
+    elif count_loss == "poisson":
+        count = masked_mean(poisson_half_deviance(mu, undegraded), occupied)
+    else:
+        raise ValueError(f"count_loss must be l1 or poisson, got {count_loss!r}")
     return {"occupancy": F.binary_cross_entropy_with_logits(logit, occupied.to(logit.dtype)),
-            "count": masked_l1(mu - undegraded, occupied)}
+            "count": count}
 
 
 def count_restoration_loss(mu: torch.Tensor, logit: torch.Tensor, undegraded: torch.Tensor,
-                           alpha: float = 0.5, occupancy_weight: float = 1.0) -> torch.Tensor:
+                           alpha: float = 0.5, occupancy_weight: float = 1.0,
+                           count_loss: str = "l1") -> torch.Tensor:
     """``occupancy_weight * occupancy + alpha * count`` (:func:`count_loss_terms`)."""
-    t = count_loss_terms(mu, logit, undegraded)
+    t = count_loss_terms(mu, logit, undegraded, count_loss)
     return occupancy_weight * t["occupancy"] + alpha * t["count"]
 
 

@@ -12,6 +12,8 @@ from rdnet.config import MAX_SEED, MAX_THREADS, check_bounds, positive
 from rdnet.errors import ConfigError
 from rdnet.events.core import MAX_SENSOR_SIDE
 
+#: train.count_loss values (:func:`rdnet.nn.losses.count_loss_terms`)
+COUNT_LOSSES = ("l1", "poisson")
 #: train.restore_output -> RestoreNet output.
 RESTORE_OUTPUTS = {"signed_masked": "signed", "counts": "counts"}
 
@@ -64,7 +66,11 @@ class TrainConfig:
     ``restore_output``: stage-1 output and loss: ``signed_masked`` (the paper: a signed
     voxel, L1 masked to where events are) or ``counts`` (per-polarity counts with an
     occupancy head, loss on every voxel, :func:`rdnet.nn.losses.count_restoration_loss`;
-    ``alpha`` then weights the count L1 and ``occupancy_weight`` the occupancy BCE).
+    ``alpha`` then weights the count term and ``occupancy_weight`` the occupancy BCE).
+    ``count_loss`` (counts output): the count term, ``l1`` (the count head aims at the
+    median count of an occupied voxel) or ``poisson`` (the Poisson half-deviance: it aims
+    at the mean count, which a restored count equal to the undegraded one needs;
+    docs/restoration.md, "The count head's loss").
     ``clean_fraction`` (tasks restore, restore_events): the share of training samples whose
     input events are the undegraded ones themselves (identity pairs, drawn per sample from
     ``(seed, epoch, row)``): without them every stage-1 input has lost events, and the
@@ -116,6 +122,7 @@ class TrainConfig:
     empty_weight: float = 0.0
     restore_output: Literal["signed_masked", "counts"] = "signed_masked"
     occupancy_weight: float = 1.0
+    count_loss: Literal["l1", "poisson"] = "l1"
     clean_fraction: float = 0.0
     support_rule: bool = False
     fit_count_gain: bool = False
@@ -155,6 +162,9 @@ class TrainConfig:
         if self.restore_output not in RESTORE_OUTPUTS:
             raise ConfigError("train.restore_output", f"must be one of {', '.join(RESTORE_OUTPUTS)}, "
                               f"got {self.restore_output!r}")
+        if self.count_loss not in COUNT_LOSSES:
+            raise ConfigError("train.count_loss", f"must be one of {', '.join(COUNT_LOSSES)}, "
+                              f"got {self.count_loss!r}")
         if self.restore_output == "counts" and self.val_sequences < 1:
             raise ConfigError("train.val_sequences", "restore_output counts fits its decision on held-out "
                               "sequences: needs >= 1")

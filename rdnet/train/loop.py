@@ -6,8 +6,8 @@ Tasks (:data:`TASKS`) and their objectives (RDNet paper, Sec. 3.4):
   towards E_u. ``train.restore_output: signed_masked`` (the paper): signed voxels and
   the restoration loss ``alpha * |M (E_r - E_u)|_1`` (Eq. 8; M the voxels where E_u or
   E_d has events, :func:`rdnet.nn.losses.restoration_loss`). ``counts``: per-polarity
-  counts, occupancy BCE on every voxel + count L1
-  (:func:`rdnet.nn.losses.count_restoration_loss`); after training the voxel -> event
+  counts, occupancy BCE on every voxel + a count term where events are (``train.count_loss``:
+  L1 or Poisson; :func:`rdnet.nn.losses.count_restoration_loss`); after training the voxel -> event
   decision is fitted on the ``train.val_sequences`` held-out sequences
   (:func:`fit_decision`) and stored in ``model.pt`` as ``extra["decision"]``.
 * ``restore_events`` -- the same without the image branch (events-only restorer for
@@ -125,7 +125,7 @@ def compute_loss(task: str, model: nn.Module, batch: Mapping[str, torch.Tensor],
         image = None if task == "restore_events" else blurry
         if counts:
             mu, logit = model(image, batch["counts_degraded"], return_heads=True)
-            t = count_loss_terms(mu, logit, batch["counts_undegraded"])
+            t = count_loss_terms(mu, logit, batch["counts_undegraded"], cfg.count_loss)
             loss = cfg.occupancy_weight * t["occupancy"] + cfg.alpha * t["count"]
             return loss, {"loss": loss.detach(), "loss_occupancy": t["occupancy"].detach(),
                           "loss_count": t["count"].detach()}

@@ -78,6 +78,35 @@ def test_occupancy_term_constrains_empty_voxels_where_the_masked_loss_does_not()
     assert t["count"].item() == 0.0 and clean["count"].item() == 0.0
 
 
+def test_count_loss_l1_aims_at_the_median_poisson_at_the_mean():
+    """The count term's optimum for a shared mu over occupied voxels with counts 1, 1, 1, 2, 5:
+    the L1's is the median (1), the Poisson half-deviance's the mean (2); voxels with no
+    undegraded event do not enter either; an unknown loss is refused."""
+    u = torch.tensor([1.0, 1.0, 1.0, 2.0, 5.0, 0.0, 0.0]).view(1, 1, 1, 7)
+    logit = torch.zeros_like(u)
+    grid = torch.linspace(1.0, 4.0, 301)
+
+    def best(loss):
+        vals = [count_loss_terms(torch.full_like(u, float(m)), logit, u, loss)["count"].item() for m in grid]
+        return grid[int(np.argmin(vals))].item()
+    assert best("l1") == pytest.approx(1.0)
+    assert best("poisson") == pytest.approx(2.0, abs=0.011)
+    t = count_loss_terms(torch.where(u > 0, u, 7.0), logit, u, "poisson")   # mu = u where occupied
+    assert t["count"].item() == pytest.approx(0.0, abs=1e-6)
+    # known value: mean over the 5 occupied voxels of mu - u + u log(u / mu) at mu = 2
+    expect = np.mean([2 - k + k * np.log(k / 2) for k in (1, 1, 1, 2, 5)])
+    assert count_loss_terms(torch.full_like(u, 2.0), logit, u, "poisson")["count"].item() == pytest.approx(expect, rel=1e-6)
+    with pytest.raises(ValueError, match="count_loss"):
+        count_loss_terms(u, logit, u, "l2")
+
+
+def test_train_count_loss_is_checked():
+    from rdnet.train.config import TrainConfig
+    assert TrainConfig(count_loss="poisson").count_loss == "poisson"
+    with pytest.raises(ConfigError, match="train.count_loss"):
+        TrainConfig(count_loss="mse")
+
+
 def test_fit_threshold_known_answers_and_decision_checks():
     p = np.array([0.9, 0.8, 0.8, 0.1])
     mu = np.array([1.0, 2.0, 1.0, 1.0])
