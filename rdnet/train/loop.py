@@ -343,6 +343,12 @@ def _init_deblur(task: str, net: nn.Module, path: Path, args: Mapping) -> None:
     log.info("initialised stage 2 of rdnet from %s (step %s)", path, ck.get("step"))
 
 
+#: train keys added after the study's checkpoints were written, with the value every earlier
+#: run had: a run at that value leaves them out of the checkpoint's config (read back as the
+#: default), so its checkpoint is byte-identical to one written before the key existed
+ADDED_TRAIN_KEYS = {"count_loss": "l1"}
+
+
 def _same_run(path: Path, ck: Mapping, task: str, args: Mapping, config: Mapping, extra: Mapping) -> None:
     """ConfigError when checkpoint ``ck`` was written by a run with other settings."""
     def differ(key, a, b):
@@ -353,9 +359,11 @@ def _same_run(path: Path, ck: Mapping, task: str, args: Mapping, config: Mapping
     if ck["model_args"] != ckpt_mod._plain(args):
         differ("model", ck["model_args"], ckpt_mod._plain(args))
     defaults = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
-    for k, v in config.items():  # a key added after the checkpoint was written: its default
-        if k not in RESUME_FREE and ck["config"].get(k, defaults.get(k)) != v:
-            differ(f"train.{k}", ck["config"].get(k), v)
+    # a key left out of either (added later, or ADDED_TRAIN_KEYS at its default): its default
+    for k in sorted(set(config) | (set(ck["config"]) & set(defaults))):
+        was, now = ck["config"].get(k, defaults.get(k)), config.get(k, defaults.get(k))
+        if k not in RESUME_FREE and was != now:
+            differ(f"train.{k}", was, now)
     for k in ("events", "pairs_shape"):
         if ck.get("extra", {}).get(k) != extra.get(k):
             differ(k, ck.get("extra", {}).get(k), extra.get(k))
@@ -421,6 +429,9 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
     check_finite(train_path, data.info)     # NaN/inf: refused before any step or output, not a non-finite loss
     args = model_args(task, model_cfg, data.info.channels, data.info.bins, cfg.model_output, cfg.stage2_input)
     config = to_dict(cfg)
+    for key, default in ADDED_TRAIN_KEYS.items():   # stored only when not the default: old checkpoints stay equal
+        if config[key] == default:
+            del config[key]
     extra = {"events": events, "train_path": str(Path(train_path)),
              "init_checkpoint": None if init_checkpoint is None else str(init_checkpoint),
              "init_deblur": None if init_deblur is None else str(init_deblur),

@@ -122,6 +122,21 @@ def test_resume_refuses_other_settings_and_finished_run_is_reused(pairs, tmp_pat
     assert done.stat().st_mtime_ns == mtime  # complete: nothing retrained
 
 
+def test_count_loss_stored_only_off_its_default_and_resume_compares_it(pairs, tmp_path):
+    """train.count_loss was added after the study's checkpoints: at its default (l1) it stays out
+    of the checkpoint's config (those checkpoints stay byte-identical), and a resume still sees a
+    change in either direction."""
+    train("restore", CFG, TINY, pairs, tmp_path / "l1", progress=False, stop_after=2)
+    assert "count_loss" not in read_checkpoint(tmp_path / "l1" / "last.pt")["config"]
+    poisson = TrainConfig(**{**CFG.__dict__, "count_loss": "poisson"})
+    with pytest.raises(ConfigError, match=r"train\.count_loss.*'l1'.*'poisson'"):
+        train("restore", poisson, TINY, pairs, tmp_path / "l1", progress=False)
+    train("restore", poisson, TINY, pairs, tmp_path / "p", progress=False, stop_after=2)
+    assert read_checkpoint(tmp_path / "p" / "last.pt")["config"]["count_loss"] == "poisson"
+    with pytest.raises(ConfigError, match=r"train\.count_loss.*'poisson'.*'l1'"):
+        train("restore", CFG, TINY, pairs, tmp_path / "p", progress=False)
+
+
 def test_stage2_starts_from_stage1_and_can_freeze_it(pairs, tmp_path, caplog):
     cfg = TrainConfig(**{**CFG.__dict__, "iterations": 2})
     stage1 = train("restore", cfg, TINY, pairs, tmp_path / "s1", progress=False)
