@@ -170,20 +170,20 @@ def main() -> int:
     if section_name != "train" or key not in params["train"]:
         ap.error(f"--key {args.key}: not a key of params.yaml's train section")
     values = [yaml.safe_load(v) for v in args.values]
-    study_fraction = params["train"][key]
+    study_value = params["train"][key]
     iterations = int(params["train"]["iterations"])
     start = time.perf_counter()
     command = "python benchmarks/restore_clean_fraction.py " + (
         f"--key {args.key} --values " if args.key != "train.clean_fraction" else "--fractions ")
     res = {"command": command + " ".join(map(_label, values)) + " --seeds " + " ".join(map(str, args.seeds)),
-           "key": args.key, "seeds": args.seeds, "study_fraction": study_fraction, "variants": []}
+           "key": args.key, "seeds": args.seeds, "study_fraction": study_value, "variants": []}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         jobs, ckpts = [], {}
         for f in values:
             for seed in args.seeds:
                 for kind, task in TASKS.items():
-                    if f == study_fraction:
+                    if f == study_value:
                         ckpts[(f, seed, kind)] = ROOT / "models" / STUDY_MODELS[kind] / f"seed{seed}" / "model.pt"
                     else:
                         jobs.append(((f, seed, kind), task, seed, tmp / f"v{_label(f)}_{task}_seed{seed}", f))

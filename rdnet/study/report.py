@@ -232,21 +232,28 @@ def write_report(details_dir: Path, restoration_path: Path | None, out_dir: Path
     return {"markdown": md, "rows": list(rows)}
 
 
-def readme_block(text: str, start: str = README_START, end: str = README_END) -> str:
-    """The text between a pair of README markers (``ValueError`` when they are missing)."""
+def _split(text: str, start: str, end: str) -> tuple[str, str, str]:
+    """(before ``start``, between the markers, after ``end``); ``ValueError`` when missing."""
     if start not in text or end not in text:
         raise ValueError(f"README markers missing: {start}")
-    return text.split(start, 1)[1].split(end, 1)[0].removeprefix("\n")
+    head, rest = text.split(start, 1)
+    block, tail = rest.split(end, 1)
+    return head, block, tail
+
+
+def readme_block(text: str, start: str = README_START, end: str = README_END) -> str:
+    """The text between a pair of README markers (``ValueError`` when they are missing)."""
+    return _split(text, start, end)[1].removeprefix("\n")
 
 
 def sync_readme(readme: Path, table_md: str, start: str = README_START, end: str = README_END) -> bool:
     """Replace the block between the README markers ``start`` and ``end`` (default: the
     study's results) by ``table_md``; True if changed."""
     text = readme.read_text()
-    if start not in text or end not in text:
-        raise ValueError(f"{readme}: markers missing: {start}")
-    head, rest = text.split(start, 1)
-    _, tail = rest.split(end, 1)
+    try:
+        head, _, tail = _split(text, start, end)
+    except ValueError as e:
+        raise ValueError(f"{readme}: {e}") from None
     new = f"{head}{start}\n{table_md}{end}{tail}"
     if new != text:
         readme.write_text(new)

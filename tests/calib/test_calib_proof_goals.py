@@ -1,4 +1,4 @@
-"""The proof's goals table (README's, written by the report stage from the proof metrics)."""
+"""The proof's goals table (README's, written by the calibration_goals stage from the proof metrics)."""
 from rdnet.calib.proof import goals_table
 
 

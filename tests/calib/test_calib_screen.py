@@ -45,8 +45,6 @@ def test_the_reach_is_measured_between_grid_points():
     assert gains["refractory_period"] > at_grid + 0.1
 
 
-
-
 def test_a_guess_is_refined_within_a_factor_of_three():
     """A screen point from a data-driven guess (no grid) is refined around the guess, as the
     forward selection's fit does, so neither kind of screen is favoured by the choice."""
