@@ -23,7 +23,8 @@ kept in, so a ``bilinear`` network's events are spread over the bins whatever th
 (:func:`times_used` says which rule applies, and what the outputs record).
 
 :func:`capped_entries` caps each voxel's count at its input count (a restorer that only
-deletes); :func:`shared_count` counts the events two streams share (``rdnet restore``'s
+deletes), :func:`floored_entries` raises it to at least its input count (one that only
+adds); :func:`shared_count` counts the events two streams share (``rdnet restore``'s
 ``events_not_recorded``).
 """
 from __future__ import annotations
@@ -121,12 +122,35 @@ def capped_entries(inputs: Events, index: np.ndarray, counts: np.ndarray, shape:
     ``[t0_us, t0_us + duration_us]`` with every count capped at the number of ``inputs``
     events in its voxel (entries left at 0 dropped): a restoration that may delete events
     but not add any (``restore.add_events: false``)."""
-    shape = tuple(int(s) for s in shape)
     index = np.asarray(index, np.int64).ravel()
-    voxels, n_in = np.unique(event_voxels(inputs, shape[1], t0_us, duration_us), return_counts=True)
+    voxels, n_in = _input_voxels(inputs, shape, t0_us, duration_us)
     capped = np.minimum(np.asarray(counts, np.int64).ravel(), _lookup(voxels, n_in, index))
     keep = capped > 0
     return index[keep], capped[keep]
+
+
+def floored_entries(inputs: Events, index: np.ndarray, counts: np.ndarray, shape: tuple,
+                    t0_us: int, duration_us: int) -> tuple[np.ndarray, np.ndarray]:
+    """The per-polarity entries ``(index, counts)`` of a (2, bins, H, W) grid over
+    ``[t0_us, t0_us + duration_us]`` with every count raised to at least the number of
+    ``inputs`` events in its voxel (an input voxel the restorer emptied comes back), in
+    increasing index order: a restoration that may add events but not delete any
+    (``restore.delete_events: false``); the counterpart of :func:`capped_entries`."""
+    index = np.asarray(index, np.int64).ravel()
+    counts = np.asarray(counts, np.int64).ravel()
+    voxels, n_in = _input_voxels(inputs, shape, t0_us, duration_us)
+    order = np.argsort(index, kind="stable")
+    every = np.union1d(index, voxels)
+    floored = np.maximum(_lookup(index[order], counts[order], every), _lookup(voxels, n_in, every))
+    keep = floored > 0
+    return every[keep], floored[keep]
+
+
+def _input_voxels(inputs: Events, shape: tuple, t0_us: int, duration_us: int) -> tuple[np.ndarray, np.ndarray]:
+    """The (increasing) flat voxel indices of ``inputs`` on a (2, bins, H, W) grid and the
+    number of events in each."""
+    bins = int(tuple(shape)[1])
+    return np.unique(event_voxels(inputs, bins, t0_us, duration_us), return_counts=True)
 
 
 def event_keys(events: Events) -> np.ndarray:

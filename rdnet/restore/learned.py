@@ -72,7 +72,7 @@ import numpy as np
 
 from rdnet.errors import ConfigError, FormatError, ModelNotFoundError, ValidationError
 from rdnet.events.core import Events
-from rdnet.events.select import capped_entries, select_events, signed_entries, times_used
+from rdnet.events.select import capped_entries, floored_entries, select_events, signed_entries, times_used
 from rdnet.events.voxel import entry_events, voxel_entries, voxel_events, voxel_grid
 
 log = logging.getLogger(__name__)
@@ -141,6 +141,9 @@ class LearnedRestorer:
     #: False: each voxel capped at its input events, the output a subset of the input
     #: (``restore.add_events``)
     add_events: bool = True
+    #: False: each voxel raised to at least its input events, every input event in the
+    #: output (``restore.delete_events``)
+    delete_events: bool = True
 
     @property
     def output(self) -> str:
@@ -163,6 +166,7 @@ class LearnedRestorer:
         return {"kind": "learned", "source": self.source, "output": self.output,
                 "image_guided": bool(self.needs_frames), "window_us": self.window_us,
                 "event_times": self.times, "add_events": self.add_events,
+                "delete_events": self.delete_events,
                 "decision": {"rule": d.get("rule"), "threshold": d.get("threshold"),
                              "drops_unsupported": support_applies(d),
                              "support_val_precision": sup.get("val_precision")}}
@@ -208,7 +212,7 @@ class LearnedRestorer:
             x = self._tensor(grid.reshape(1, -1, H, W))
         img = self._tensor(self._image(frame, H, W)) if self.net.image_channels else None
         own_times = self.times == "input"
-        entries = own_times or not self.add_events
+        entries = own_times or not self.add_events or not self.delete_events
         with torch.inference_mode():
             if split:
                 index, counts = sparse_decided_entries(self.net, img, x, self.decision)
@@ -219,6 +223,8 @@ class LearnedRestorer:
                     index, counts, shape = signed_entries(out)
         if not self.add_events:
             index, counts = capped_entries(ev, index, counts, shape, t0_us, dur)
+        if not self.delete_events:
+            index, counts = floored_entries(ev, index, counts, shape, t0_us, dur)
         if own_times:
             restored = select_events(ev, index, counts, shape, t0_us, dur)
         elif split or entries:
@@ -235,10 +241,11 @@ def _fail(path: Path, field: str, msg: str) -> ConfigError:
 
 def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapping | None = None,
                              device: str = "cpu", source: str | None = None,
-                             event_times: str = "input", add_events: bool = True) -> LearnedRestorer:
+                             event_times: str = "input", add_events: bool = True,
+                             delete_events: bool = True) -> LearnedRestorer:
     """A :class:`LearnedRestorer` from one checkpoint file, validated (module docstring).
-    ``event_times``: ``restore.event_times`` (input or bins); ``add_events``:
-    ``restore.add_events``."""
+    ``event_times``: ``restore.event_times`` (input or bins); ``add_events``,
+    ``delete_events``: ``restore.add_events``, ``restore.delete_events``."""
     from rdnet.restore.settings import EVENT_TIMES
     if event_times not in EVENT_TIMES:
         raise ConfigError("restore.event_times", f"must be one of {list(EVENT_TIMES)}, got {event_times!r}")
@@ -280,9 +287,11 @@ def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapp
         raise _fail(path, "extra.decision", str(e)) from None
     name = "rdnet-image" if image_channels else "rdnet-events"
     mode = str(voxel.get("mode") or "hard")
-    if not add_events and mode != "hard":
-        raise _fail(path, "extra.voxel.mode", f"restore.add_events: false caps each voxel at its input "
-                    f"events, which needs hard voxel bins; the network reads {mode!r} voxels")
+    for key, on, what in (("add_events", add_events, "caps each voxel at"),
+                          ("delete_events", delete_events, "raises each voxel to at least")):
+        if not on and mode != "hard":
+            raise _fail(path, "extra.voxel.mode", f"restore.{key}: false {what} its input events, which "
+                        f"needs hard voxel bins; the network reads {mode!r} voxels")
     if times_used(event_times, mode) != event_times:
         log.info("%s: restore.event_times=input keeps the recorded timestamps of hard-binned voxels; "
                  "this network reads %r voxels, so its events are spread over the bins", path, mode)
@@ -291,15 +300,16 @@ def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapp
                            window_us=None if window is None else int(window), net=net, decision=decision,
                            bins=bins, mode=mode, source=source or str(path),
                            device=str(device), channels_last=channels_last, event_times=event_times,
-                           add_events=bool(add_events))
+                           add_events=bool(add_events), delete_events=bool(delete_events))
 
 
 def load_restorer(checkpoint: str | Path | None, *, has_frames: bool, params: Mapping,
-                  device: str = "cpu", event_times: str = "input", add_events: bool = True) -> LearnedRestorer:
+                  device: str = "cpu", event_times: str = "input", add_events: bool = True,
+                  delete_events: bool = True) -> LearnedRestorer:
     """The learned restorer to use (module docstring for the search order). ``device``: cpu,
-    cuda or auto (cuda when available); ``event_times``, ``add_events``: ``restore.event_times``,
-    ``restore.add_events``."""
-    kw = {"event_times": event_times, "add_events": add_events}
+    cuda or auto (cuda when available); ``event_times``, ``add_events``, ``delete_events``:
+    ``restore.event_times``, ``restore.add_events``, ``restore.delete_events``."""
+    kw = {"event_times": event_times, "add_events": add_events, "delete_events": delete_events}
     from rdnet.train.loop import resolve_device
     device = str(resolve_device(str(device), key="restore.device"))
     if checkpoint is not None:

@@ -78,7 +78,11 @@ class RestoreConfig:
     (every output event spread evenly over its bin, as the voxel grid alone allows). Both
     give the same voxel grid. ``add_events``: false caps each voxel of the learned restorer
     at its input events, so it deletes but never adds (its output is then a subset of the
-    recording); true (the default) keeps the events it adds where it judges some lost."""
+    recording); true (the default) keeps the events it adds where it judges some lost.
+    ``delete_events``: false raises each voxel of the learned restorer to at least its input
+    events, so it adds but never deletes (every recorded event is in its output); true (the
+    default) deletes the events it judges noise. Both false would return the recording as
+    it is (``method: raw``) and is refused."""
 
     method: Literal["rdnet", "baf", "stcf", "gef", "raw", "ednccn"] = "rdnet"
     window_us: int = 50_000
@@ -102,6 +106,7 @@ class RestoreConfig:
     frame_compression: Literal["none", "gzip", "lzf"] = "none"
     event_times: Literal["input", "bins"] = "input"
     add_events: bool = True
+    delete_events: bool = True
 
     def __post_init__(self):
         for key in ("window_us", "chunk_events", "baf_dt_us", "stcf_tau_us", "stcf_k", "stcf_radius",
@@ -123,6 +128,10 @@ class RestoreConfig:
             raise ConfigError("restore.event_times", f"must be one of {list(EVENT_TIMES)}, got {self.event_times!r}")
         if self.gef_mode not in ("mask", "filter"):
             raise ConfigError("restore.gef_mode", f"must be mask or filter, got {self.gef_mode!r}")
+        if not self.add_events and not self.delete_events:
+            raise ConfigError("restore.delete_events", "false together with restore.add_events: false leaves "
+                                                      "every voxel at its input, the recording as it is "
+                                                      "(restore.method: raw does that)")
         if self.device not in ("cpu", "cuda", "auto"):
             raise ConfigError("restore.device", f"must be cpu, cuda or auto, got {self.device!r}")
         if self.frame_compression not in ("none", "gzip", "lzf"):

@@ -6,7 +6,8 @@ import pytest
 
 from rdnet.errors import ValidationError
 from rdnet.events import Events, voxel_grid
-from rdnet.events.select import capped_entries, event_voxels, select_events, shared_count, signed_entries
+from rdnet.events.select import (capped_entries, event_voxels, floored_entries, select_events, shared_count,
+                                 signed_entries)
 from rdnet.events.voxel import entry_events
 
 W, H, BINS, T0, DUR = 5, 4, 4, 1000, 400          # bins of 100 us: [1000, 1100), ...
@@ -125,3 +126,29 @@ def test_capped_entries_never_exceed_the_input():
     expect[0, 0, 0, 0] = 2
     np.testing.assert_array_equal(got.reshape(want.shape), expect)
     assert (counts > 0).all()
+
+
+def test_floored_entries_never_fall_below_the_input():
+    """restore.delete_events: false: every voxel keeps at least its input events (one the
+    restorer emptied comes back), counts above the input and added voxels stay."""
+    ev = _ev([(1010, 0, 0, 1), (1020, 0, 0, 1), (1150, 1, 1, 0)])
+    grid = voxel_grid(ev, BINS, T0, DUR, polarity="split").astype(np.int64)
+    want = grid.copy()
+    want[0, 0, 0, 0] = 1           # fewer than its 2 inputs: raised to 2
+    want[1, 1, 1, 1] = 0           # deleted: comes back with its 1 input
+    want[0, 3, 3, 4] = 2           # no input there: an addition, kept
+    idx, counts = floored_entries(ev, *_entries(want), want.shape, T0, DUR)
+    got = np.zeros(want.size, np.int64)
+    got[idx] = counts
+    expect = grid.copy()
+    expect[0, 3, 3, 4] = 2
+    np.testing.assert_array_equal(got.reshape(want.shape), expect)
+    assert (counts > 0).all() and (np.diff(idx) > 0).all()
+    # entries in any order give the same result; no entries at all give the input back
+    i, c = _entries(want)
+    idx2, counts2 = floored_entries(ev, i[::-1], c[::-1], want.shape, T0, DUR)
+    np.testing.assert_array_equal(idx2, idx)
+    np.testing.assert_array_equal(counts2, counts)
+    idx3, counts3 = floored_entries(ev, i[:0], c[:0], want.shape, T0, DUR)
+    np.testing.assert_array_equal(idx3, _entries(grid)[0])
+    np.testing.assert_array_equal(counts3, _entries(grid)[1])

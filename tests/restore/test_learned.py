@@ -7,9 +7,11 @@ import torch
 
 from rdnet.errors import ConfigError
 from rdnet.events import Events
+from rdnet.events.select import shared_count
 from rdnet.events.voxel import voxel_grid
 from rdnet.nn.decision import decision_dict
 from rdnet.restore.learned import load_restorer
+from rdnet.restore.settings import RestoreConfig
 from rdnet.train.checkpoint import make_checkpoint, save_checkpoint
 from rdnet.train.loop import build_seeded
 
@@ -105,6 +107,33 @@ def test_add_events_false_caps_every_voxel_at_its_input(tmp_path):
                                   voxel_grid(inside, 3, 0, 30000, polarity="split"))
     with pytest.raises(ConfigError, match=r"bil\.pt.*extra\.voxel\.mode.*add_events"):
         load_restorer(_save(tmp_path / "bil.pt", mode="bilinear"), has_frames=False, params=PARAMS, add_events=False)
+
+
+def test_delete_events_false_keeps_every_input_event(tmp_path):
+    """restore.delete_events: a decision threshold of 1 empties every voxel, so the restorer
+    deletes the whole window; raised to the input it gives the window's events back exactly,
+    timestamps included. With a decision that adds (threshold 0) the input events are all in
+    the output, beside the added ones. Bilinear voxels are refused (no voxel per event)."""
+    path = _save(tmp_path / "m.pt", decision=1.0)
+    ev = _events(6)
+    inside = ev.slice_time(0, 30000)
+    assert len(load_restorer(path, has_frames=False, params=PARAMS).restore(ev, 0, 30000, None)) == 0
+    r = load_restorer(path, has_frames=False, params=PARAMS, delete_events=False)
+    assert r.info["delete_events"] is False and r.info["add_events"] is True
+    np.testing.assert_array_equal(r.restore(ev, 0, 30000, None).array, inside.array)
+    adds = load_restorer(_save(tmp_path / "a.pt", decision=0.0), has_frames=False, params=PARAMS,
+                         delete_events=False).restore(ev, 0, 30000, None)
+    assert len(adds) > 5 * len(inside)
+    assert shared_count(inside, adds) == len(inside)
+    with pytest.raises(ConfigError, match=r"bil\.pt.*extra\.voxel\.mode.*delete_events"):
+        load_restorer(_save(tmp_path / "bil.pt", mode="bilinear"), has_frames=False, params=PARAMS,
+                      delete_events=False)
+
+
+def test_restore_config_refuses_neither_adding_nor_deleting():
+    assert RestoreConfig(delete_events=False).delete_events is False
+    with pytest.raises(ConfigError, match="restore.delete_events.*method: raw"):
+        RestoreConfig(add_events=False, delete_events=False)
 
 
 def test_image_guided_restorer_needs_frames_and_reads_one(tmp_path):

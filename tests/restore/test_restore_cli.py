@@ -185,6 +185,17 @@ def test_cuda_without_a_gpu_names_the_restore_key(tmp_path, capsys, monkeypatch)
     _assert_no_output(tmp_path, "o.h5", "o.json")
 
 
+def test_neither_adding_nor_deleting_exits_2_naming_the_key(tmp_path, capsys):
+    """restore.add_events and restore.delete_events both false would leave every voxel at
+    its input: one line naming the key and pointing to --method raw, no output."""
+    _write(tmp_path / "in.h5", frames=False)
+    rc = main(["restore", str(tmp_path / "in.h5"), str(tmp_path / "o.h5"), "--no-progress",
+               "--set", "restore.add_events=false", "--set", "restore.delete_events=false"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "restore.delete_events" in err and "method: raw" in err and "Traceback" not in err
+    _assert_no_output(tmp_path, "o.h5", "o.json")
+
+
 def test_gef_without_frames_exits_2(tmp_path, capsys):
     _write(tmp_path / "in.h5")
     rc = main(["restore", str(tmp_path / "in.h5"), str(tmp_path / "o.h5"), "--method", "gef", "--no-progress"])
