@@ -27,6 +27,9 @@ VARIANTS = (Run("rdnet_no_hot_pass", "rdnet", restore={"hot_pixel_factor": 0}, s
 #: An extra row on every recording: the learned restorer that only deletes (each voxel capped at
 #: its input events, restore.add_events: false), the same network and decision.
 DELETIONS_ONLY = Run("rdnet_deletions_only", "rdnet", restore={"add_events": False}, suffix=" (deletions only)")
+#: And its counterpart that only adds (each voxel raised to its input events, every recorded
+#: event kept, restore.delete_events: false): the two rows split the learned restorer's effect.
+ADDITIONS_ONLY = Run("rdnet_additions_only", "rdnet", restore={"delete_events": False}, suffix=" (additions only)")
 
 
 def figure(path, name, raw, outs, act):
@@ -88,7 +91,7 @@ def main(args, params):
         if args.only and name not in args.only:
             continue
         log.info("restoring %s (%s)", name, path)
-        runs = [Run(m, m) for m in METHODS] + [DELETIONS_ONLY] + (list(VARIANTS) if name in facts.hot_pixels else [])
+        runs = [Run(m, m) for m in METHODS] + [DELETIONS_ONLY, ADDITIONS_ONLY] + (list(VARIANTS) if name in facts.hot_pixels else [])
         sc = score_recording(name, path, params, runs, args.data_out / name, facts=facts)
         summary["recordings"][name] = sc.entry
         figure(args.out / f"{name}.png", name, sc.raw, sc.outs, sc.activity)
