@@ -13,8 +13,10 @@ only, also a row there), as :func:`rdnet.events.select.capped_entries` and
 This script scores the same split on the simulated data, where the truth is known: for the
 study's count restorers (``models/restore_image``, ``models/restore_events``; ``dvc repro``
 first), each training seed, on the checkpoint's own validation rows (held-out training
-sequences, where the decision was fitted) and on the test split (degradations disjoint from
-training), the event metrics of the study (``rdnet.eval.events.match_metrics``: precision,
+sequences, where the decision was fitted), on the test split (degradations disjoint from
+training) and on the same test sequences rendered by the independent circuit generator
+(``rdnet.study.independent.circuit_pairs``, one draw, as the ``restoration_circuit`` stage
+makes them: events rdnet's simulator did not make), the event metrics of the study (``rdnet.eval.events.match_metrics``: precision,
 recall, F1 against the undegraded events; count ratio; the signed all-voxel L1) of
 
 * ``raw``: the degraded input;
@@ -25,7 +27,7 @@ recall, F1 against the undegraded events; count ratio; the signed all-voxel L1) 
   0 (each keeps ``round(mu)`` >= 1 events), the threshold of the other voxels refitted on the
   validation rows so that the count matches there again (``rdnet.nn.decision.fit_threshold``).
 
-    PYTHONPATH=$PWD .venv/bin/python benchmarks/restore_decision_parts.py       # about 5 minutes
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/restore_decision_parts.py       # about 8 minutes
 
 Writes ``benchmarks/results/restore_decision_parts.{json,md}``.
 """
@@ -54,9 +56,8 @@ VARIANTS = ("raw", "decision", "deletions only", "additions only", "keep every i
 METRICS = ("precision", "recall", "f1", "count_ratio", "voxel_l1_all")
 
 
-def heads(path: Path, pairs: Path, rows: np.ndarray, image: bool):
-    """``(mu, prob, target, support, input counts)`` of one checkpoint on ``rows``."""
-    net = load_model(path)
+def heads(net, pairs: Path, rows: np.ndarray, image: bool):
+    """``(mu, prob, target, support, input counts)`` of a loaded restorer on ``rows``."""
     data = PairsDataset(pairs, events="degraded", rows=rows)
     mu, prob, target, support = predict_counts(net, data, torch.device("cpu"), image=image, with_support=True)
     inputs = np.stack([data[i]["counts_degraded"].numpy() for i in range(len(data))])
@@ -64,10 +65,10 @@ def heads(path: Path, pairs: Path, rows: np.ndarray, image: bool):
 
 
 def keep_inputs(mu, prob, sup, occupied, threshold_out: float) -> np.ndarray:
-    """Every voxel with input events kept (``round(mu)`` events), the others at
-    ``threshold_out`` (both with the support rule's mask)."""
-    return (decide_counts(mu, np.where(occupied, prob, 0.0), 0.0, sup) * occupied
-            + decide_counts(mu, np.where(occupied, 0.0, prob), threshold_out, sup) * ~occupied)
+    """Every voxel with input events kept (``round(mu)`` events), the others where their
+    probability reaches ``threshold_out`` (both with the support rule's mask)."""
+    keep = occupied | (prob >= np.float32(threshold_out))
+    return decide_counts(mu, keep.astype(np.float32), 0.5, sup)
 
 
 def scores(counts: np.ndarray, target: np.ndarray) -> dict:
@@ -75,31 +76,37 @@ def scores(counts: np.ndarray, target: np.ndarray) -> dict:
     return {k: float(m[k]) for k in METRICS}
 
 
-def measure(name: str, seed: int) -> dict:
+def measure(name: str, seed: int, circuit: Path | None) -> dict:
+    """One checkpoint on its validation rows, the test split and (``circuit``: a pairs file)
+    the test split rendered by the independent circuit generator."""
     path = ROOT / "models" / name / f"seed{seed}" / "model.pt"
     ck = read_checkpoint(path)
+    net = load_model(path)
     dec = ck["extra"]["decision"]
     image = name == "restore_image"
     train, test = ROOT / "data" / "pairs" / "train.h5", ROOT / "data" / "pairs" / "test.h5"
     split = {"validation": (train, np.asarray(ck["extra"]["val_rows"], np.int64)),
              "test": (test, np.arange(read_pairs_info(test).n))}
+    if circuit is not None:
+        split["test, circuit"] = (circuit, np.arange(read_pairs_info(circuit).n))
     out = {"network": name, "seed": seed, "threshold": float(dec["threshold"])}
     threshold_out = None
-    for which in ("validation", "test"):           # validation first: it fits the second threshold
-        mu, prob, target, support, inp = heads(path, *split[which], image)
+    for which in split:                            # validation first: it fits the second threshold
+        mu, prob, target, support, inp = heads(net, *split[which], image)
         sup = support if support_applies(dec) else None
         decided = decide_counts(mu, prob, float(dec["threshold"]), sup)
         occupied = inp > 0
         if threshold_out is None:
-            kept = int(keep_inputs(mu, prob, sup, occupied, 1.1).sum())
+            kept = int(decide_counts(mu, occupied.astype(np.float32), 0.5, sup).sum())
             rest = int(np.rint(target).sum()) - kept
             other = np.where(occupied, 0.0, prob) * (1.0 if sup is None else np.broadcast_to(sup, prob.shape))
-            threshold_out = float(fit_threshold(mu, other, rest)) if rest > 0 else 1.1
+            threshold_out = float(fit_threshold(mu, other, rest)) if rest > 0 else float("inf")
             out["threshold_other_voxels"] = threshold_out
         variants = {"raw": inp, "decision": decided, "deletions only": np.minimum(decided, inp),
                     "additions only": np.maximum(decided, inp),
                     "keep every input voxel": keep_inputs(mu, prob, sup, occupied, threshold_out)}
         out[which] = {k: scores(v, target) for k, v in variants.items()}
+        out.setdefault("splits", []).append(which)
         log.info("%s seed %d %s: %s", name, seed, which,
                  {k: round(v["f1"], 4) for k, v in out[which].items()})
     return out
@@ -125,11 +132,12 @@ def markdown(res: dict) -> str:
                     for r in runs)
     return "\n".join([
         "The learned restorer's decision split into its deletions and its additions (`python "
-        "benchmarks/restore_decision_parts.py`; the study's count restorers, simulated data, truth = the "
+        "benchmarks/restore_decision_parts.py`; the study's count restorers, simulated data (rdnet's simulator; "
+        "`test, circuit`: the test sequences rendered by the independent circuit generator), truth = the "
         "undegraded events). `deletions only` = min(decision, input) per voxel (`restore.add_events: false`), "
         "`additions only` = max(decision, input) (`restore.delete_events: false`), `keep every input voxel` = "
         "the voxels with input events all kept, the other voxels' threshold refitted to the validation count.", "",
-        *mean_table(runs, "validation"), *mean_table(runs, "test"),
+        *[line for which in runs[0]["splits"] for line in mean_table(runs, which)],
         f"Decision threshold -> threshold of the voxels without input events when every input voxel is kept: {thr}.",
         ""])
 
@@ -139,9 +147,21 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "restore_decision_parts.json")
+    ap.add_argument("--no-circuit", action="store_true",
+                    help="skip the test split rendered by the independent circuit generator")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    runs = [measure(n, s) for n in ("restore_image", "restore_events") for s in args.seeds]
+    import tempfile
+
+    from rdnet.config import load_params
+    from rdnet.study.data import sequences
+    from rdnet.study.independent import circuit_pairs
+    with tempfile.TemporaryDirectory() as tmp:
+        circuit = None
+        if not args.no_circuit:      # the test sequences rendered by the circuit generator, one draw
+            circuit, _ = circuit_pairs(load_params(ROOT / "params.yaml"),
+                                       sequences(ROOT / "data" / "events", "test"), Path(tmp), 0)
+        runs = [measure(n, s, circuit) for n in ("restore_image", "restore_events") for s in args.seeds]
     write_results(args.out, {"benchmark": "restore_decision_parts", "runs": runs}, markdown)
 
 
