@@ -1,21 +1,25 @@
 """Stage `report`: results/ablation.md (table from the metrics, with the paper's numbers
 and gaps, and the same on the independent circuit generator's events) and figures (PSNR per
 row, PSNR against degradation level, sample grid). `python stages/report.py --sync-readme`
-copies that table and results/calibration_goals.md (stage `calibration_goals`) into README.md."""
+copies that table and results/calibration_goals.md (stage `calibration_goals`) into README.md,
+and results/restore_real/summary.md (stage `restore_real`) into docs/cli.md."""
 from pathlib import Path
 
 import _common
 
 
 def main(args, params):
-    from rdnet.study.report import CALIBRATION_END, CALIBRATION_START, sync_readme, write_report
+    from rdnet.study.report import (CALIBRATION_END, CALIBRATION_START, RESTORE_REAL_END, RESTORE_REAL_START,
+                                    sync_readme, write_report)
     rows = (params.get("ablation") or {}).get("rows", {})
     order = list(rows)
     if args.sync_readme:      # calibration_goals.md: the calibration_goals stage's
         changed = sync_readme(Path("README.md"), (args.out / "ablation.md").read_text())
         changed |= sync_readme(Path("README.md"), (args.out / "calibration_goals.md").read_text(),
                                CALIBRATION_START, CALIBRATION_END)
-        print("README.md updated" if changed else "README.md already up to date")
+        changed |= sync_readme(Path("docs/cli.md"), Path("results/restore_real/summary.md").read_text(),
+                               RESTORE_REAL_START, RESTORE_REAL_END)
+        print("README.md / docs/cli.md updated" if changed else "README.md and docs/cli.md already up to date")
         return
     write_report(args.details, args.restoration, args.out, order,
                  checkpoints={rid: r.get("checkpoint") for rid, r in rows.items()}, circuit_path=args.circuit)

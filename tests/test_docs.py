@@ -47,11 +47,13 @@ def test_every_docs_page_is_listed_in_readme():
     assert not missing, f"docs pages not listed under README's Documentation: {missing}"
 
 
-@pytest.mark.parametrize("table, markers", [("results/ablation.md", ("README_START", "README_END")),
-                                            ("results/calibration_goals.md", ("CALIBRATION_START", "CALIBRATION_END"))])
-def test_readme_tables_are_the_generated_ones(table, markers):
-    """README's generated tables are the committed outputs of the report stage, verbatim
-    (`python stages/report.py --sync-readme` after `dvc repro report`)."""
+@pytest.mark.parametrize("page, table, markers", [
+    ("README.md", "results/ablation.md", ("README_START", "README_END")),
+    ("README.md", "results/calibration_goals.md", ("CALIBRATION_START", "CALIBRATION_END")),
+    ("docs/cli.md", "results/restore_real/summary.md", ("RESTORE_REAL_START", "RESTORE_REAL_END"))])
+def test_readme_tables_are_the_generated_ones(page, table, markers):
+    """The docs' generated tables are the committed outputs of their stages, verbatim
+    (`python stages/report.py --sync-readme` after `dvc repro`)."""
     from rdnet.study import report
     start, end = (getattr(report, m) for m in markers)
-    assert report.readme_block((ROOT / "README.md").read_text(), start, end) == (ROOT / table).read_text()
+    assert report.readme_block((ROOT / page).read_text(), start, end) == (ROOT / table).read_text()
