@@ -62,7 +62,7 @@ OFF = {"onoff_ratio": 1.0}
 THRESHOLD_SCALE = Param("threshold_scale", 0.4, 2.5)
 
 EFFECTS: dict[str, Effect] = {e.name: e for e in (
-    Effect("threshold_mismatch", (Param("threshold_sigma", 0.01, 0.6),), "pixel_quantiles",
+    Effect("threshold_mismatch", (Param("threshold_sigma", 0.01, 0.6),), "pixel_persistence",
            "per-pixel spread of the contrast thresholds (fixed-pattern mismatch)", True),
     Effect("onoff_asymmetry", (Param("onoff_ratio", 0.4, 2.5, "off"),), "on_fraction",
            "ON and OFF contrast thresholds differ", True),

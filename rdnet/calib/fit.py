@@ -140,6 +140,17 @@ class Objective:
         self.simulate_fn = simulate_fn
         self.engine = engine or Engine(ctx)
         self.name = name
+        if "persistence_reference" not in ctx._cache:
+            # the declared config's mean counts (S, P) over fixed seeds: what each stream's
+            # per-pixel persistence is measured against (rdnet.calib.stats._persistence)
+            refs = []
+            for seed in st.PERSIST_REF_SEEDS:
+                if simulate_fn is not None:
+                    ev = simulate_fn(ctx.sim_images, ctx.sim_t, sensor, degrade, np.random.default_rng(seed))
+                    refs.append(st.summarize(ev, ctx).pix)
+                else:
+                    refs.append(self.engine.summary(sensor, degrade, seed).pix)
+            ctx._cache["persistence_reference"] = np.mean(refs, 0)
         real = st.summarize(ctx.real, ctx)
         self.real_fit = st.aggregate(real, ctx, ctx.fit)
         self.real_held = st.aggregate(real, ctx, ctx.held)

@@ -191,6 +191,14 @@ def _plot_statistic(ax, name: str, cal: Calibration) -> None:
         ax.set_yscale("log")
         ax.set_xlabel("quantile band" + (f" {TAIL_BANDS}" if name == "pixel_tail" else ""))
         ax.set_ylabel("mean |ON - OFF| rate (Hz)" if name == "pixel_tail" else "mean rate (Hz)")
+    elif name == "pixel_persistence":
+        # one number per stream: how much each pixel's excess over the declared config
+        # repeats between the two halves of the segments (threshold mismatch repeats)
+        for i, (lab, s, col) in enumerate(series):
+            ax.bar(i, float(s[name]), color=col, label=f"{lab}: {float(s[name]):.4f}")
+        ax.set_xticks([])
+        ax.axhline(0.0, color="k", lw=0.6)
+        ax.set_ylabel("cov. of per-pixel log excess, halves")
     elif name in TWIN_AXIS_STATISTICS:
         # the still pixels' rate in Hz on its own (right) axis: a ratio to the recording's
         # rate means nothing where its still pixels hardly fire (DAVIS346: none at all)

@@ -272,7 +272,7 @@ def test_aggregate_layout_is_computed_once_and_changes_nothing(ctx):
     assert ctx._cache["stats_layout"] is lay and len(lay.masks) == 3
     for a, b in zip(cold, warm):
         assert a.keys() == b.keys()
-        assert all(np.array_equal(a[k], b[k]) for k in a)
+        assert all(np.array_equal(a[k], b[k], equal_nan=True) for k in a)
     with pytest.raises(ValueError):
         warm[0]["time_mask"][0] = True
 
