@@ -31,7 +31,11 @@ class Effect:
     (:func:`rdnet.calib.fit.shape_estimate`), not searched; [lo, hi] is their clip range.
     ``tuning``: parameters that come with the effect and do not switch it on or off either,
     but are searched with it over [lo, hi] (the bandwidth's dark-current floor: how much
-    slower dark pixels are is the sensor's, not a constant of the model)."""
+    slower dark pixels are is the sensor's, not a constant of the model). ``fit_own``: the
+    weight of the effect's own statistic's fit-segment term added to the fit discrepancy
+    while the effect's parameters are searched (:class:`rdnet.calib.fit.OwnGuided`; 0: the
+    discrepancy alone), for an effect whose statistic has weight 0 in the discrepancy but
+    reads its parameter where the discrepancy's terms are flat."""
 
     name: str
     params: tuple[Param, ...]
@@ -40,6 +44,7 @@ class Effect:
     changes_count: bool = False     # removes or adds signal events: thresholds can hide it
     shape: tuple[Param, ...] = ()
     tuning: tuple[Param, ...] = ()
+    fit_own: float = 0.0
 
     @property
     def keys(self) -> tuple[str, ...]:
@@ -63,7 +68,7 @@ THRESHOLD_SCALE = Param("threshold_scale", 0.4, 2.5)
 
 EFFECTS: dict[str, Effect] = {e.name: e for e in (
     Effect("threshold_mismatch", (Param("threshold_sigma", 0.01, 0.6),), "pixel_persistence",
-           "per-pixel spread of the contrast thresholds (fixed-pattern mismatch)", True),
+           "per-pixel spread of the contrast thresholds (fixed-pattern mismatch)", True, fit_own=1.0),
     Effect("onoff_asymmetry", (Param("onoff_ratio", 0.4, 2.5, "off"),), "on_fraction",
            "ON and OFF contrast thresholds differ", True),
     Effect("bandwidth", (Param("cutoff_hz", 1.0, 3000.0, "hi"),), "rate_vs_intensity",

@@ -45,3 +45,26 @@ def test_persistence_grows_with_the_spread_and_needs_enough_pixels():
     few = np.zeros(P, bool)
     few[:10] = True                               # fewer than 20 moving pixels: no estimate
     assert np.isnan(_persistence(pix, ref, few))
+
+
+def test_own_guided_adds_the_own_term_to_the_fit_only():
+    """OwnGuided (Effect.fit_own): the effect's own statistic's fit term, times its weight,
+    joins every seed's fit discrepancy; the held-out discrepancy and terms are untouched,
+    and an effect without fit_own is searched on the discrepancy alone."""
+    from rdnet.calib.effects import EFFECTS
+    from rdnet.calib.fit import Evaluation, OwnGuided, guided
+
+    ev = Evaluation({"threshold_sigma": 0.1}, np.array([1.0, 2.0]), np.array([3.0, 4.0]),
+                    {"pixel_persistence": np.array([0.5, 0.25]), "rate": np.array([1.0, 1.0])},
+                    {"pixel_persistence": np.array([0.1, 0.1])}, 10.0)
+    inner = type("F", (), {"ctx": "ctx", "__call__": lambda self, v: ev})()
+    g = OwnGuided(inner, "pixel_persistence", 2.0)
+    out = g({"threshold_sigma": 0.1})
+    assert np.allclose(out.fit, [2.0, 2.5]) and out.fit_mean == pytest.approx(2.25)
+    assert np.array_equal(out.held, ev.held) and out.held_terms is ev.held_terms and out.values == ev.values
+    assert g.ctx == "ctx"
+    mismatch = EFFECTS["threshold_mismatch"]
+    assert mismatch.statistic == "pixel_persistence" and mismatch.fit_own > 0
+    assert isinstance(guided(inner, mismatch), OwnGuided)
+    assert guided(inner, EFFECTS["latency"]) is inner           # no fit_own: the discrepancy alone
+    assert OwnGuided(inner, "no_such_statistic", 1.0)(None) is ev
