@@ -21,6 +21,7 @@ Writes ``benchmarks/results/calib_mismatch_curve.{json,md}``.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
 from pathlib import Path
@@ -29,14 +30,12 @@ from pathlib import Path
 from rdnet.calib.calibrate import _objectives, interpolation_configs
 from rdnet.calib.context import build_context
 from rdnet.calib.fit import Compensated, fit_basic
-from rdnet.config import load_params, section
-from rdnet.sim.interpolate import InterpolateConfig
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from calib_case_profile import case_recording  # noqa: E402
-from calib_persistence import kept_interpolation  # noqa: E402
+from calib_persistence import calibrate_settings, kept_interpolation  # noqa: E402
 from restore_train_range import write_results  # noqa: E402
 
 log = logging.getLogger("calib_mismatch_curve")
@@ -96,12 +95,8 @@ def main() -> None:
     ap.add_argument("--params", type=Path, default=ROOT / "params.yaml")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "calib_mismatch_curve.json")
     args = ap.parse_args()
-    for name in ("rdnet.calib", "rdnet.sim"):
-        logging.getLogger(name).setLevel(logging.WARNING)
-    cfg = section(load_params(args.params), "calibrate")
-    interp = InterpolateConfig(max_upsample=cfg.max_upsample)
+    cfg, interp = calibrate_settings(args.params)
     rows = []
-    import json
     for case_name, generator, oversample in CASES:
         case, rec, truth = case_recording(case_name, generator, oversample, cfg, interp, 2024)
         kept = kept_interpolation(case_name, generator, oversample)

@@ -150,6 +150,15 @@ def markdown(res: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def calibrate_settings(params: Path):
+    """The ``calibrate`` section of ``params`` and the proof's interpolation (its
+    ``max_upsample``), with the library's per-step logging quietened."""
+    for name in ("rdnet.calib", "rdnet.sim"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    cfg = section(load_params(params), "calibrate")
+    return cfg, InterpolateConfig(max_upsample=cfg.max_upsample)
+
+
 def main() -> None:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -158,10 +167,7 @@ def main() -> None:
     ap.add_argument("--params", type=Path, default=ROOT / "params.yaml")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "calib_persistence.json")
     args = ap.parse_args()
-    for name in ("rdnet.calib", "rdnet.sim"):
-        logging.getLogger(name).setLevel(logging.WARNING)
-    cfg = section(load_params(args.params), "calibrate")
-    interp = InterpolateConfig(max_upsample=cfg.max_upsample)
+    cfg, interp = calibrate_settings(args.params)
     cases = CASES if args.cases is None else [(c.split(":")[0], c.split(":")[1], int(c.split(":")[2]))
                                               for c in args.cases]
     rows = []
