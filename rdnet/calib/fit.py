@@ -146,13 +146,8 @@ class Objective:
         if "persistence_reference" not in ctx._cache:
             # the declared config's mean counts (S, P) over fixed seeds: what each stream's
             # per-pixel persistence is measured against (rdnet.calib.stats._persistence)
-            refs = []
-            for seed in st.PERSIST_REF_SEEDS:
-                if simulate_fn is not None:
-                    ev = simulate_fn(ctx.sim_images, ctx.sim_t, sensor, degrade, np.random.default_rng(seed))
-                    refs.append(st.summarize(ev, ctx).pix)
-                else:
-                    refs.append(self.engine.summary(sensor, degrade, seed).pix)
+            # (not memoised nor counted in n_sims: they are no candidate's simulations)
+            refs = [self._simulated(sensor, degrade, seed).pix for seed in st.PERSIST_REF_SEEDS]
             ctx._cache["persistence_reference"] = np.mean(refs, 0)
         real = st.summarize(ctx.real, ctx)
         self.real_fit = st.aggregate(real, ctx, ctx.fit)
@@ -179,17 +174,20 @@ class Objective:
         if hit is not None:
             self._summaries.move_to_end(key)
             return hit
-        sensor, degrade = self.configs(values)
         self.n_sims += 1
-        if self.simulate_fn is not None:
-            ev = self.simulate_fn(self.ctx.sim_images, self.ctx.sim_t, sensor, degrade, np.random.default_rng(seed))
-            s = st.summarize(ev, self.ctx)
-        else:
-            s = self.engine.summary(sensor, degrade, seed)
+        s = self._simulated(*self.configs(values), seed)
         self._summaries[key] = s
         if len(self._summaries) > SUMMARY_CACHE:
             self._summaries.popitem(last=False)
         return s
+
+    def _simulated(self, sensor: SensorConfig, degrade: DegradeConfig, seed: int) -> st.Summary:
+        """The summary of one simulation of ``sensor`` + ``degrade`` with ``seed``: through
+        ``simulate_fn`` when given, else the engine (which reuses its pixel-circuit events)."""
+        if self.simulate_fn is not None:
+            ev = self.simulate_fn(self.ctx.sim_images, self.ctx.sim_t, sensor, degrade, np.random.default_rng(seed))
+            return st.summarize(ev, self.ctx)
+        return self.engine.summary(sensor, degrade, seed)
 
     def simulate(self, values: dict, seed: int) -> Events:
         """Time-sorted events of one simulation (for the report)."""
