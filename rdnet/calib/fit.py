@@ -287,7 +287,10 @@ class OwnGuided:
         self.ctx = f.ctx
 
     def __call__(self, values: dict) -> Evaluation:
-        ev = self.f(values)
+        return self.adjust(self.f(values))
+
+    def adjust(self, ev: Evaluation) -> Evaluation:
+        """``ev`` (an evaluation of the plain evaluator) as this evaluator scores it."""
         own = ev.fit_terms.get(self.name)
         if own is None:
             return ev
@@ -660,7 +663,13 @@ def first_fit(obj: Objective, values: dict, effect: Effect, screened: list[Evalu
 
 def _screen_start(obj: Objective, values: dict, effect: Effect, screened: list[Evaluation]) -> tuple[int, dict]:
     """The index of the best point of :func:`screen` and its values with the shape parameters
-    read off the recording (:func:`shape_estimate`; else the guess's, or the declared value)."""
+    read off the recording (:func:`shape_estimate`; else the guess's, or the declared value).
+    Best is judged as the search that refines it judges (:func:`guided`): for threshold
+    mismatch the plain discrepancy's best grid point sat below the truth in the proof's
+    ``s2`` cases, so the golden section bracketed by its neighbours could not reach it."""
+    score = guided(obj, effect)
+    if isinstance(score, OwnGuided):
+        screened = [score.adjust(e) for e in screened]
     i = int(np.argmin([e.fit_mean for e in screened]))
     v = dict(screened[i].values)
     v.update(shape_estimate(obj, values, effect))

@@ -68,3 +68,23 @@ def test_own_guided_adds_the_own_term_to_the_fit_only():
     assert isinstance(guided(inner, mismatch), OwnGuided)
     assert guided(inner, EFFECTS["latency"]) is inner           # no fit_own: the discrepancy alone
     assert OwnGuided(inner, "no_such_statistic", 1.0)(None) is ev
+
+
+def test_screen_start_judges_grid_points_as_the_guided_search_does():
+    """The best screen point, where the golden section of threshold mismatch starts, is the
+    one with the lowest guided score (discrepancy + own statistic), not the lowest plain
+    discrepancy; an effect without ``fit_own`` keeps the plain best point."""
+    from rdnet.calib.effects import EFFECTS
+    from rdnet.calib.fit import Evaluation, _screen_start
+
+    def ev(sigma, fit, own):
+        return Evaluation({"threshold_sigma": sigma, "latency_us": sigma}, np.array([fit, fit]), np.array([0.0, 0.0]),
+                          {"pixel_persistence": np.array([own, own])}, {}, 1.0)
+
+    # the plain discrepancy prefers 0.03, the persistence term says 0.08 by far
+    screened = [ev(0.03, 1.00, 0.40), ev(0.08, 1.02, 0.05), ev(0.2, 1.10, 0.30)]
+    obj = type("O", (), {"ctx": None})()
+    i, v = _screen_start(obj, {}, EFFECTS["threshold_mismatch"], screened)
+    assert i == 1 and v["threshold_sigma"] == 0.08
+    i, v = _screen_start(obj, {}, EFFECTS["latency"], screened)
+    assert i == 0 and v["latency_us"] == 0.03
