@@ -96,10 +96,15 @@ def test_report_schema_and_files(hot_cal, tmp_path):
     for a in hot["look_alikes"]:
         assert f"**hot_pixels** is not told apart from **{a['name']}**" in md
     # the frame interpolation is a nuisance choice: the recording's events were simulated
-    # from linearly blended frames, and that is the method the basic refit keeps (not flow,
-    # nor 'selected', which mixes flow in where it predicts the frames better)
+    # from linearly blended frames, so flow is far off and linear blending fits as well as
+    # the best ('selected' mixes flow in only where it predicts the frames better: on this
+    # small scene their reachable fits are within 1.5 % of each other, and which of the two
+    # wins moves with the concealment's shot-noise rate, 1.618 or 1.658 Hz for the same count)
     fi = r["frame_interpolation"]
-    assert set(fi["candidates"]) == {"flow", "linear", "selected"} and fi["chosen"] == "linear"
+    cands = fi["candidates"]
+    assert set(cands) == {"flow", "linear", "selected"} and fi["chosen"] in ("linear", "selected")
+    assert cands["linear"]["fit_reachable"] <= 1.05 * cands[fi["chosen"]]["fit_reachable"]
+    assert cands["flow"]["fit_reachable"] > 2 * cands["linear"]["fit_reachable"]
     assert all(c["fit_reachable"] <= c["fit_after_basic_refit"] for c in fi["candidates"].values())
     assert "Frame interpolation" in md
 
