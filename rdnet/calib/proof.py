@@ -231,8 +231,8 @@ def match_count(count_at, start: tuple, target: int, slope: float, lo: float, hi
     steps did not halve it. Stops when a count is within ``tol`` of the target, after
     ``max_runs`` runs, or when the bracket is narrower than 1e-6. Returns the triple of the
     count nearest the target (the first of equals), whose events are then the recording's:
-    3-7 runs on the proof's cases where the bisection took 14 (circuit) or 18 (docs/calibration.md,
-    "The count match")."""
+    on the proof's cases 1-6 circuit runs where the bisection took 14, and 3-13 of rdnet's
+    simulator where it took 18 (``benchmarks/proof_count_match.py``)."""
     target = max(int(target), 1)
     rising = slope > 0
 
