@@ -62,6 +62,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import itertools
 import logging
 import math
 import threading
@@ -494,8 +495,12 @@ class PairInterpolator:
             w = w[..., None] if self.color else w
         # the arrays ``frame`` blends (swapped for their sampled views by ``on_grid``)
         self._blend = (self.f0, self.f1, w)
+        self._grid = 1                          # the stride of ``on_grid`` while inside it
+        self._shared = None
         if flows is not None:
             flows.share(index, self)
+            if self.uses_flow:
+                self._shared = (flows, int(index), next(_TOKENS))
 
     @property
     def uses_flow(self) -> bool:
@@ -512,6 +517,7 @@ class PairInterpolator:
         full = self._prepare() if self.uses_flow else None
         f0, f1, w = blend
         self._blend = (f0[::s, ::s], f1[::s, ::s], None if w is None else w[::s, ::s])
+        self._grid = int(s)
         if full is not None:
             f01, f10, o0, o1, gx, gy = full
             self._flows = (np.ascontiguousarray(f01[::s, ::s]), np.ascontiguousarray(f10[::s, ::s]), o0, o1,
@@ -520,6 +526,7 @@ class PairInterpolator:
             yield self
         finally:
             self._blend = blend
+            self._grid = 1
             if full is not None:
                 self._flows = full
 
@@ -557,7 +564,11 @@ class PairInterpolator:
         t = np.float32(t)
         if not self.uses_flow:
             return self.crossfade(t)
-        out = self._warped(t)
+        if self._shared is None:
+            out = self._warped(t)
+        else:
+            flows, index, token = self._shared
+            out = flows.warped(index, self, t, token)
         if weight is None:
             return out
         return (weight * out + (1 - weight) * self.crossfade(t)).astype(np.float32)
@@ -600,25 +611,40 @@ class PairInterpolator:
         return out
 
 
+#: distinct ids of the interpolators that take frames from a :class:`PairFlowCache`
+_TOKENS = itertools.count()
+
+
 class PairFlowCache:
     """The flows of each frame pair, computed once for several interpolations of the same
     frames (methods 'flow' and 'selected' warp with the same pair flows), also when they are
     built at the same time in threads (the second waits for the first). Only for one frame
     sequence: a pair is known by its index and the flow settings. ``users``: how many
     interpolations will ask for each pair; a pair's flows are dropped once all have them,
-    so the cache holds only the pairs in progress."""
+    so the cache holds only the pairs in progress.
+
+    The flow frames are shared the same way (:meth:`warped`): 'selected' blends the very
+    frame 'flow' uses (``PairInterpolator._warped``) with the cross-fade, so a frame at a
+    time both ask for is warped once. A frame is dropped once ``users`` interpolators have
+    taken it; one that only one of them asks for (their adaptive counts differ at that pair)
+    stays until the cache goes, at most a few frames per pair."""
 
     def __init__(self, users: int):
         self._lock = threading.Lock()
         self._pending: dict = {}             # key -> [Future of the flows, users still to come]
+        self._frames: dict = {}              # key -> [Future of the frame, tokens that took it]
         self.users = int(users)
+
+    @staticmethod
+    def _key(index: int, pi: "PairInterpolator") -> tuple:
+        c = pi.cfg
+        return (int(index), pi.f0.shape, c.flow, c.dis_preset, c.dis_finest_scale, c.occlusion)
 
     def share(self, index: int, pi: "PairInterpolator") -> None:
         """Give ``pi`` (pair ``index``) the flows of that pair, computing them on first use."""
         if not pi.uses_flow:
             return
-        c = pi.cfg
-        key = (int(index), pi.f0.shape, c.flow, c.dis_preset, c.dis_finest_scale, c.occlusion)
+        key = self._key(index, pi)
         with self._lock:
             owner = key not in self._pending
             if owner:
@@ -635,6 +661,30 @@ class PairFlowCache:
                 fut.set_exception(e)
                 raise
         pi._flows = fut.result()
+
+    def warped(self, index: int, pi: "PairInterpolator", t: np.float32, token: int) -> np.ndarray:
+        """``pi._warped(t)`` of pair ``index`` on ``pi``'s current grid, computed by the first
+        interpolator that asks (the others wait for it); read-only. ``token``: the asking
+        interpolator's id (one that asks twice is not counted twice)."""
+        key = self._key(index, pi) + (pi._grid, float(t))
+        with self._lock:
+            entry = self._frames.get(key)
+            owner = entry is None
+            if owner:
+                entry = self._frames[key] = [Future(), set()]
+            entry[1].add(token)
+            if len(entry[1]) >= self.users:
+                del self._frames[key]
+        fut = entry[0]
+        if owner:
+            try:
+                out = pi._warped(t)
+                out.flags.writeable = False
+                fut.set_result(out)
+            except BaseException as e:
+                fut.set_exception(e)
+                raise
+        return fut.result()
 
 
 def flow_weight(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig, log_eps: float = 0.01
