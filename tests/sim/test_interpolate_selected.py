@@ -141,3 +141,39 @@ def test_pair_flow_cache_computes_each_pair_once_across_threads(texture, monkeyp
     for a, b, c in zip(shared[0], shared[1], own):
         np.testing.assert_array_equal(a, c)
         np.testing.assert_array_equal(b, c)                 # no weight: selected is flow
+
+
+def test_pair_flow_cache_warps_each_frame_once_for_flow_and_selected(texture, monkeypatch):
+    """'selected' blends the very flow frame 'flow' uses: with a shared cache each frame
+    (pair, grid, time) is warped once across both, the frames equal those warped alone, and
+    no frame both asked for is kept."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import rdnet.sim.interpolate as ip
+    frames = _moving(texture, 4, 2.0)
+    weight = np.full(frames.shape[1:3], 0.5, np.float32)
+    warps = []
+    plain = ip.PairInterpolator._warped
+    monkeypatch.setattr(ip.PairInterpolator, "_warped", lambda self, t: warps.append(1) or plain(self, t))
+    cache = ip.PairFlowCache(users=2)
+
+    def frames_of(method):
+        out = []
+        for i in range(3):
+            pi = PairInterpolator(frames[i], frames[i + 1], InterpolateConfig(method=method), weight, cache, i)
+            with pi.on_grid(2):
+                out.append([pi.frame(t) for t in (0.25, 0.5)])
+        return out
+
+    with ThreadPoolExecutor(2) as pool:
+        shared = dict(zip(["flow", "selected"], pool.map(frames_of, ["flow", "selected"])))
+    assert len(warps) == 3 * 2 and not cache._frames            # 2 times x 3 pairs, once each
+    warps.clear()
+    for method in ("flow", "selected"):
+        for i in range(3):
+            pi = PairInterpolator(frames[i], frames[i + 1], InterpolateConfig(method=method), weight)
+            with pi.on_grid(2):
+                for a, t in zip(shared[method][i], (0.25, 0.5)):
+                    np.testing.assert_array_equal(a, pi.frame(t))
+    assert len(warps) == 2 * 3 * 2                               # alone: every call warps
+    assert not np.array_equal(shared["flow"][0][0], shared["selected"][0][0])   # weight 0.5: a blend
