@@ -143,12 +143,16 @@ class Objective:
         self.simulate_fn = simulate_fn
         self.engine = engine or Engine(ctx)
         self.name = name
+        #: simulations this objective ran (the report's cost figure)
+        self.n_sims = 0
         if "persistence_reference" not in ctx._cache:
             # the declared config's mean counts (S, P) over fixed seeds: what each stream's
-            # per-pixel persistence is measured against (rdnet.calib.stats._persistence)
-            # (not memoised nor counted in n_sims: they are no candidate's simulations)
+            # per-pixel persistence is measured against (rdnet.calib.stats._persistence);
+            # not memoised (no candidate's simulations), but counted in n_sims by the first
+            # objective of the context, which runs them
             refs = [self._simulated(sensor, degrade, seed).pix for seed in st.PERSIST_REF_SEEDS]
             ctx._cache["persistence_reference"] = np.mean(refs, 0)
+            self.n_sims = len(refs)
         real = st.summarize(ctx.real, ctx)
         self.real_fit = st.aggregate(real, ctx, ctx.fit)
         self.real_held = st.aggregate(real, ctx, ctx.held)
@@ -156,7 +160,6 @@ class Objective:
         self.real_fit_count = float(self.real_fit["count"])
         self.cache: dict = {}
         self._summaries: OrderedDict = OrderedDict()
-        self.n_sims = 0
 
     def configs(self, values: dict) -> tuple[SensorConfig, DegradeConfig]:
         return apply(self.sensor, self.degrade, values)

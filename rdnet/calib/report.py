@@ -185,12 +185,13 @@ def _plot_statistic(ax, name: str, cal: Calibration) -> None:
         ax.axvline(0.0, color="k", lw=0.6)
         ax.set_xlabel("delay of the simulation (ms)")
         ax.set_ylabel(f"Pearson correlation, rates smoothed over {LAG_SMOOTH_BINS} bins")
-    elif name in ("pixel_tail", "pixel_quantiles"):
+    elif name in ("pixel_tail", "pixel_quantiles", "pixel_isolated"):
         for lab, s, col in series:
             ax.plot(np.arange(len(s[name])), s[name], "o-", color=col, label=lab)
-        ax.set_yscale("log")
-        ax.set_xlabel("quantile band" + (f" {TAIL_BANDS}" if name == "pixel_tail" else ""))
-        ax.set_ylabel("mean |ON - OFF| rate (Hz)" if name == "pixel_tail" else "mean rate (Hz)")
+        ax.set_yscale("symlog" if name == "pixel_isolated" else "log")   # isolated rates are 0 in most bands
+        ax.set_xlabel("quantile band" + (f" {TAIL_BANDS}" if name != "pixel_quantiles" else ""))
+        ax.set_ylabel({"pixel_tail": "mean |ON - OFF| rate (Hz)",
+                       "pixel_isolated": "mean rate above the busiest neighbour (Hz)"}.get(name, "mean rate (Hz)"))
     elif name == "pixel_persistence":
         # one number per stream: how much each pixel's excess over the declared config
         # repeats between the two halves of the segments (threshold mismatch repeats)

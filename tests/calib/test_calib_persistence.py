@@ -88,3 +88,26 @@ def test_screen_start_judges_grid_points_as_the_guided_search_does():
     assert i == 1 and v["threshold_sigma"] == 0.08
     i, v = _screen_start(obj, {}, EFFECTS["latency"], screened)
     assert i == 0 and v["latency_us"] == 0.03
+
+
+def test_reference_simulations_are_counted_once_per_context():
+    """The persistence reference (PERSIST_REF_SEEDS simulations of the declared config) is
+    run by the first objective on a context and counted in its ``n_sims``; a second
+    objective on the same context reuses it and counts nothing; a candidate's simulations
+    count once per seed (memoised)."""
+    import calib_cases
+    from rdnet.calib.context import build_context
+    from rdnet.calib.fit import Objective
+    from rdnet.calib.settings import CalibrateConfig
+    from rdnet.sim.settings import DegradeConfig
+
+    rec, _ = calib_cases.null_recording()
+    ctx = build_context(rec, CalibrateConfig(), calib_cases.SENSOR.log_eps, interpolate=calib_cases.INTERP)
+    degrade = DegradeConfig(shot_noise_hz=1.0)
+    first = Objective(ctx, calib_cases.SENSOR, degrade, [0, 1])
+    assert first.n_sims == len(st.PERSIST_REF_SEEDS) == 4
+    second = Objective(ctx, calib_cases.SENSOR, degrade, [0, 1], engine=first.engine)
+    assert second.n_sims == 0
+    second({})
+    second({})                                   # memoised: no new simulation
+    assert second.n_sims == 2                    # shot noise draws random numbers: both seeds

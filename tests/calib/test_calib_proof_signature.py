@@ -61,13 +61,16 @@ def test_signature_gate_vetoes_a_gain_that_comes_from_other_statistics():
     assert not c3.significant and not c3.vetoed
 
 
+OWN = EFFECTS["hot_pixels"].statistic
+
+
 def test_own_statistic_names_an_effect_whose_total_gain_is_within_the_seed_spread():
     cfg = CalibrateConfig()
     # the total held-out discrepancy scatters over seeds (a structural term the effect does
     # not touch), but the effect's own statistic drops far beyond its own spread and the
     # total drops in every seed
-    before = evaluation({"pixel_tail": [0.60, 0.62, 0.58], "rate_map": [1.0, 2.0, 1.5]})
-    after = evaluation({"pixel_tail": [0.10, 0.12, 0.08], "rate_map": [1.0, 2.0, 1.5]})
+    before = evaluation({OWN: [0.60, 0.62, 0.58], "rate_map": [1.0, 2.0, 1.5]})
+    after = evaluation({OWN: [0.10, 0.12, 0.08], "rate_map": [1.0, 2.0, 1.5]})
     c = score(Candidate(EFFECTS["hot_pixels"], {}, after), before, cfg)
     assert c.z < cfg.significance and c.relative > cfg.min_relative_gain
     assert c.signature_z > cfg.signature_significance
@@ -77,16 +80,16 @@ def test_own_statistic_names_an_effect_whose_total_gain_is_within_the_seed_sprea
     c_off = score(Candidate(EFFECTS["hot_pixels"], {}, after), before, off)
     assert not c_off.significant and not c_off.by_signature and c_off.confidence < 0.5
     # one seed that gets worse: not named by the signature
-    mixed = evaluation({"pixel_tail": [0.10, 0.12, 0.08], "rate_map": [1.0, 2.0, 2.1]})
+    mixed = evaluation({OWN: [0.10, 0.12, 0.08], "rate_map": [1.0, 2.0, 2.1]})
     c_mixed = score(Candidate(EFFECTS["hot_pixels"], {}, mixed), before, cfg)
     assert c_mixed.signature_z > cfg.signature_significance and not c_mixed.significant
     # a small own drop (below signature_significance seed spreads): not named
-    small = evaluation({"pixel_tail": [0.55, 0.57, 0.53], "rate_map": [1.0, 2.0, 1.5]})
+    small = evaluation({OWN: [0.55, 0.57, 0.53], "rate_map": [1.0, 2.0, 1.5]})
     c_small = score(Candidate(EFFECTS["hot_pixels"], {}, small), before, cfg)
     assert c_small.signature_z < cfg.signature_significance and not c_small.significant
     # nor when the relative gain is below min_relative_gain
-    big = evaluation({"pixel_tail": [0.60, 0.62, 0.58], "rate_map": [50.0, 60.0, 55.0]})
-    after_big = evaluation({"pixel_tail": [0.10, 0.12, 0.08], "rate_map": [50.0, 60.0, 55.0]})
+    big = evaluation({OWN: [0.60, 0.62, 0.58], "rate_map": [50.0, 60.0, 55.0]})
+    after_big = evaluation({OWN: [0.10, 0.12, 0.08], "rate_map": [50.0, 60.0, 55.0]})
     c_rel = score(Candidate(EFFECTS["hot_pixels"], {}, after_big), big, cfg)
     assert c_rel.relative < cfg.min_relative_gain and not c_rel.significant
 

@@ -91,6 +91,51 @@ def test_band_means():
     assert st.band_means(np.array([]), (0.0, 1.0)).tolist() == [0.0]
 
 
+def test_isolated_counts_keep_lone_pixels_of_either_polarity_and_drop_structures():
+    n = np.zeros((6, 8), np.int64)
+    n[:, 2] = 40                      # an edge: a column of busy pixels, each has a busy neighbour
+    n[4, 6] = 50                      # a lone busy pixel (a hot pixel)
+    n[4, 5] = 3                       # ... next to a quiet one
+    n[0, 7] = 9                       # a lone pixel at the corner (the border has no neighbours)
+    iso = st.isolated_counts(n)
+    assert iso[4, 6] == 47 and iso[0, 7] == 9
+    assert iso[:, 2].max() == 0       # the edge fires in neighbouring pixels: not isolated
+    assert (iso >= 0).all() and iso.sum() == 47 + 9
+    assert st.isolated_counts(np.full((3, 3), 5)).max() == 0
+    assert n[4, 6] == 50              # the input is not changed
+
+
+def test_isolated_tail_counts_hot_pixels_whatever_their_polarity(ctx):
+    """The same hot pixels firing balanced ON / OFF leave the net-rate tail at the scene's
+    level but raise the isolated-rate tail as much as one-polarity ones do."""
+    s = st.summarize(ctx.real, ctx)
+    segs = range(len(ctx.segments))
+    base = st.aggregate(s, ctx, segs)
+    T, P = float(base["seconds"]), ctx.n_pixels
+    # 8 pixels, none next to another or to the two busy pixels of the fixture
+    xy = np.array([(5, 5), (9, 9), (2, 12), (13, 13), (6, 1), (14, 8), (3, 8), (10, 14)])
+    assert ctx.stride == 1 and P == 256
+    hot = xy[:, 1] * ctx.width + xy[:, 0]
+    t0 = int(ctx.segments[0, 0])
+    out = {}
+    for name, pol in (("one", lambda k: np.ones(k, np.int8)), ("mixed", lambda k: np.arange(k) % 2)):
+        extra = np.zeros(len(hot) * 200, ctx.real.array.dtype)
+        extra["x"] = np.repeat(hot % ctx.width, 200) * ctx.stride
+        extra["y"] = np.repeat(hot // ctx.width, 200) * ctx.stride
+        extra["t"] = t0 + np.tile(np.linspace(0, T * 1e6 - 1, 200).astype(np.int64), len(hot))
+        extra["p"] = np.concatenate([pol(200)] * len(hot))
+        arr = np.sort(np.concatenate([ctx.real.array, extra]), order="t")
+        out[name] = st.aggregate(st.summarize(Events(arr, ctx.real.width, ctx.real.height), ctx), ctx, segs)
+    # band 2 ([0.98, 0.99)) and above hold only hot pixels (8 of 256 pixels, 200 events each)
+    rate = 200 / T
+    assert out["one"]["pixel_tail"][2:] == pytest.approx(rate)
+    assert out["mixed"]["pixel_tail"][2] == pytest.approx(0.0)       # as many ON as OFF: no net rate
+    for name in ("one", "mixed"):
+        assert out[name]["pixel_isolated"][2:] == pytest.approx(rate)
+    assert base["pixel_isolated"][2] < 0.1 * rate
+    assert st.distances(out["mixed"], base, ctx)["pixel_isolated"] > 1.0
+
+
 def test_xcorr_lag_recovers_shift():
     rng = np.random.default_rng(0)
     a = np.convolve(rng.random(400), np.ones(5) / 5, "same")
