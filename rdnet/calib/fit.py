@@ -351,7 +351,8 @@ def _around(v: float, factor: float, p: Param) -> tuple[float, float]:
 
 def _guess(obj: Objective, values: dict, effect: Effect, noise_reset: bool = True) -> dict | None:
     """A first guess for effects whose parameters can be read off the statistics
-    (hot pixels: pixels whose net ON - OFF rate exceeds any simulated one; latency: the rate
+    (hot pixels: pixels whose rate above their busiest neighbour exceeds any simulated one,
+    their number and median excess over the simulation at the same pixel; latency: the rate
     cross-correlation lag; shot noise / leak: the excess (ON - OFF for leak) event rate
     of static pixels, for leak the rate that shows as that excess under the simulated
     noise's resets (:func:`leak_rate_under_noise`; the excess itself with
@@ -416,21 +417,24 @@ def _guess(obj: Objective, values: dict, effect: Effect, noise_reset: bool = Tru
         at = _hot_pixel_mask(sim_all, obj.real_all)
         if at is None:
             return None
-        hot = obj.real_all["net_rate"].ravel()[at]
+        excess = (obj.real_all["pixel_rate"] - sim_all["pixel_rate"]).ravel()[at]
         v = dict(values)
-        v["hot_pixel_fraction"] = float(np.clip(hot.size / at.size, 0.0005, 0.05))
-        v["hot_pixel_hz"] = float(np.clip(np.median(hot) - float(np.mean(sim_all["net_rate"])), 3.0, 3000.0))
+        v["hot_pixel_fraction"] = float(np.clip(excess.size / at.size, 0.0005, 0.05))
+        v["hot_pixel_hz"] = float(np.clip(np.median(excess), 3.0, 3000.0))
         v.update(shape_estimate(obj, values, effect, at))
         return v
     return None
 
 
 def _hot_pixel_mask(sim_all: dict, real_all: dict) -> np.ndarray | None:
-    """The sampled pixels whose net ON - OFF rate in the recording (``real_all``, whole-window
-    statistics) exceeds any simulated one (``sim_all``) (hot pixels; busy scene pixels
-    dropped: hot pixels share one rate), or None."""
-    sim = sim_all["net_rate"].ravel()
-    real = real_all["net_rate"].ravel()
+    """The sampled pixels whose rate above their busiest neighbour (``isolated_rate``,
+    :func:`rdnet.calib.stats.isolated_counts`) in the recording (``real_all``, whole-window
+    statistics) exceeds any simulated one (``sim_all``) (hot pixels, whatever their polarity;
+    busy scene pixels dropped: hot pixels share one rate), or None. The net rate |ON - OFF|
+    used before found the one-sided hot pixels only, so the polarity read off them
+    (:func:`shape_estimate`) came out more one-sided than the recording's."""
+    sim = sim_all["isolated_rate"].ravel()
+    real = real_all["isolated_rate"].ravel()
     top = np.sort(sim)[-max(1, sim.size // 1000):]
     thresh = 2.0 * float(top.mean()) + 1.0
     cut = thresh

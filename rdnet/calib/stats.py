@@ -398,8 +398,8 @@ def aggregate(s: Summary, ctx: CalibContext, segs) -> dict[str, np.ndarray]:
     # the bands of rates k / T from the sorted counts k (dividing keeps the order)
     tail = band_means(sorted_counts(net_n) / max(T, 1e-9), TAIL_BANDS, presorted=True)
     quantiles = band_means(sorted_counts(pix[moving]) / max(T, 1e-9), MOVING_BANDS, presorted=True)
-    isolated = band_means(sorted_counts(isolated_counts(pix.reshape(H, W)).ravel()) / max(T, 1e-9), TAIL_BANDS,
-                          presorted=True)
+    iso_n = isolated_counts(pix.reshape(H, W))
+    isolated = band_means(sorted_counts(iso_n.ravel()) / max(T, 1e-9), TAIL_BANDS, presorted=True)
     ref = ctx._cache.get("persistence_reference")
     persist = np.float64(np.nan) if ref is None or len(segs) < 2 else np.float64(
         _persistence(s.pix, ref, segs[0::2], segs[1::2], moving))
@@ -426,6 +426,7 @@ def aggregate(s: Summary, ctx: CalibContext, segs) -> dict[str, np.ndarray]:
         "net_rate": net_n.reshape(H, W) / max(T, 1e-9),
         "pixel_tail": tail,
         "pixel_isolated": isolated,
+        "isolated_rate": iso_n / max(T, 1e-9),
         "rate_time": np.where(tmask, s.rate_t / lay.widths, 0.0),
         "time_mask": tmask,
     }
