@@ -8,9 +8,12 @@ expectation is divided out. The statistic, on the calibration's own context:
 
     r_p(A) = log((n_p(A) + 1) / (m_p(A) + 1)),     persistence = cov_p(r_p(fit), r_p(held))
 
-over the moving pixels with m_p >= 3 in both sets, where n_p(A) counts pixel p's events in the
-fit (or held-out) segments and m_p(A) is the mean count of 4 simulations of the basic refit
-(the configured parameters re-fitted, no mismatch; seeds 100-103). It is compared for the
+over the moving pixels with m_p >= 3 in both sets (the 2 % most extreme left out), where n_p(A)
+counts pixel p's events in the fit (or held-out) segments and m_p(A) is the mean count of 4
+simulations of the basic refit (the configured parameters re-fitted, no mismatch; seeds
+100-103): the library's statistic (``rdnet.calib.stats._persistence``) with the fit and
+held-out segments as the two halves and the basic refit as the reference, where the library
+references the declared config and splits each segment set into alternate halves. It is compared for the
 recording ("real") and for simulations of the basic refit with ``threshold_sigma`` set to 0,
 0.05, 0.1 and 0.2 (seeds 0-2); ``sigma_hat`` reads the recording's value off that curve
 (linear interpolation in sigma^2, since the statistic grows as the variance of the log gain).
@@ -72,17 +75,6 @@ CASES = (
 )
 
 
-def persistence(pix: np.ndarray, ref_fit: np.ndarray, ref_held: np.ndarray, moving: np.ndarray,
-                fit, held) -> tuple[float, int]:
-    """(covariance over pixels of the fit and held-out log ratios to the reference, pixels)."""
-    f = pix[list(fit)].sum(0).astype(np.float64)
-    h = pix[list(held)].sum(0).astype(np.float64)
-    ok = moving & (ref_fit >= 3) & (ref_held >= 3)
-    a = np.log((f[ok] + 1.0) / (ref_fit[ok] + 1.0))
-    b = np.log((h[ok] + 1.0) / (ref_held[ok] + 1.0))
-    return float(np.mean((a - a.mean()) * (b - b.mean()))), int(ok.sum())
-
-
 def sigma_hat(real: float, curve: dict) -> float:
     """The threshold_sigma whose simulated persistence (mean over seeds) equals ``real``,
     interpolated linearly in sigma^2 (0 below the sigma = 0 point, extrapolated above 0.2)."""
@@ -106,18 +98,18 @@ def measure(rec, base: DegradeConfig, sensor: SensorConfig, cfg, interp, name: s
         obj, fine, search = _objectives(ctx, sensor, base, list(SEEDS), None)
         values, _ = fit_basic(search, fine)
         moving = ~ctx.static.ravel()
-        refs = [obj.summary(values, s).pix for s in REFERENCE_SEEDS]
-        ref_fit = np.mean([r[list(ctx.fit)].sum(0) for r in refs], 0)
-        ref_held = np.mean([r[list(ctx.held)].sum(0) for r in refs], 0)
-        real, n = persistence(st.summarize(ctx.real, ctx).pix, ref_fit, ref_held, moving, ctx.fit, ctx.held)
+        ref = np.mean([obj.summary(values, s).pix for s in REFERENCE_SEEDS], 0)      # (S, P)
+
+        def persistence(pix: np.ndarray) -> float:
+            return st._persistence(pix, ref, ctx.fit, ctx.held, moving)
+        real = persistence(st.summarize(ctx.real, ctx).pix)
         curve = {}
         for sig in SIGMAS:
             v = dict(values)
             if sig:
                 v["threshold_sigma"] = sig
-            curve[f"{sig:g}"] = [persistence(obj.summary(v, s).pix, ref_fit, ref_held, moving, ctx.fit, ctx.held)[0]
-                                 for s in SEEDS]
-        out["interpolations"][icfg.method] = {"real": real, "pixels": n, "sim": curve,
+            curve[f"{sig:g}"] = [persistence(obj.summary(v, s).pix) for s in SEEDS]
+        out["interpolations"][icfg.method] = {"real": real, "sim": curve,
                                               "sigma_hat": sigma_hat(real, curve),
                                               "basic_refit": {k: float(x) for k, x in values.items()}}
         log.info("%s %s: real %.4f, sim %s, sigma_hat %.3f", name, icfg.method, real,
