@@ -2,8 +2,9 @@
 held-out discrepancy, and threshold mismatch's own statistic, along ``threshold_sigma``
 (issue 12).
 
-In those cases (true sigma 0.1) the calibration fits a sigma of 0.03-0.07, and its held-out
-gain is 0.4-1.4 seed spreads; ``pixel_persistence``, its own statistic (weight 0), reads the
+In those cases (true sigma 0.1) the calibration fitted a sigma of 0.03-0.07 when this was
+written (session 31; each table's heading gives the committed proof's fit), and its held-out
+gain was 0.4-1.4 seed spreads; ``pixel_persistence``, its own statistic (weight 0), reads the
 truth within 10 % (``benchmarks/results/calib_persistence.md``). If the discrepancy were
 merely flat (noisy) near the truth, fitting the own statistic too would name them; if it
 rises beyond the fitted sigma, the other statistics disagree with the truth and a fit pulled
