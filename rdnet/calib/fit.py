@@ -427,14 +427,14 @@ def _guess(obj: Objective, values: dict, effect: Effect, noise_reset: bool = Tru
 
 
 def _hot_pixel_mask(sim_all: dict, real_all: dict) -> np.ndarray | None:
-    """The sampled pixels whose rate above their busiest neighbour (``isolated_rate``,
-    :func:`rdnet.calib.stats.isolated_counts`) in the recording (``real_all``, whole-window
+    """The sampled pixels whose rate above their busiest neighbour
+    (:func:`rdnet.calib.stats.isolated_counts` of ``pixel_rate``) in the recording (``real_all``, whole-window
     statistics) exceeds any simulated one (``sim_all``) (hot pixels, whatever their polarity;
     busy scene pixels dropped: hot pixels share one rate), or None. The net rate |ON - OFF|
     used before found the one-sided hot pixels only, so the polarity read off them
     (:func:`shape_estimate`) came out more one-sided than the recording's."""
-    sim = sim_all["isolated_rate"].ravel()
-    real = real_all["isolated_rate"].ravel()
+    sim = st.isolated_counts(sim_all["pixel_rate"]).ravel()
+    real = st.isolated_counts(real_all["pixel_rate"]).ravel()
     top = np.sort(sim)[-max(1, sim.size // 1000):]
     thresh = 2.0 * float(top.mean()) + 1.0
     cut = thresh

@@ -310,8 +310,9 @@ def band_means(x: np.ndarray, bands, presorted: bool = False) -> np.ndarray:
 
 
 def isolated_counts(n: np.ndarray) -> np.ndarray:
-    """(H, W) counts -> each pixel's excess over the largest of its (up to) 8 neighbours,
-    0 where a neighbour has as many (the ``pixel_isolated`` statistic, module docstring)."""
+    """(H, W) counts (or rates) -> each pixel's excess over the largest of its (up to) 8
+    neighbours, 0 where a neighbour has as many (the ``pixel_isolated`` statistic, module
+    docstring; the hot-pixel mask of :mod:`rdnet.calib.fit`)."""
     h, w = n.shape
     p = np.zeros((h + 2, w + 2), n.dtype)      # counts are >= 0: a border has no larger neighbour
     p[1:-1, 1:-1] = n
@@ -398,8 +399,8 @@ def aggregate(s: Summary, ctx: CalibContext, segs) -> dict[str, np.ndarray]:
     # the bands of rates k / T from the sorted counts k (dividing keeps the order)
     tail = band_means(sorted_counts(net_n) / max(T, 1e-9), TAIL_BANDS, presorted=True)
     quantiles = band_means(sorted_counts(pix[moving]) / max(T, 1e-9), MOVING_BANDS, presorted=True)
-    iso_n = isolated_counts(pix.reshape(H, W))
-    isolated = band_means(sorted_counts(iso_n.ravel()) / max(T, 1e-9), TAIL_BANDS, presorted=True)
+    isolated = band_means(sorted_counts(isolated_counts(pix.reshape(H, W)).ravel()) / max(T, 1e-9), TAIL_BANDS,
+                          presorted=True)
     ref = ctx._cache.get("persistence_reference")
     persist = np.float64(np.nan) if ref is None or len(segs) < 2 else np.float64(
         _persistence(s.pix, ref, segs[0::2], segs[1::2], moving))
@@ -423,10 +424,8 @@ def aggregate(s: Summary, ctx: CalibContext, segs) -> dict[str, np.ndarray]:
         "static_count": np.float64(n_st),
         "static_on_fraction": np.float64((n_st_on + 1.0) / (n_st + 2.0)),
         "pixel_quantiles": quantiles,
-        "net_rate": net_n.reshape(H, W) / max(T, 1e-9),
         "pixel_tail": tail,
         "pixel_isolated": isolated,
-        "isolated_rate": iso_n / max(T, 1e-9),
         "rate_time": np.where(tmask, s.rate_t / lay.widths, 0.0),
         "time_mask": tmask,
     }
