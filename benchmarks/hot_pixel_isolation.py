@@ -25,7 +25,6 @@ count keeps |2 q - 1| of a pixel firing ON with probability q).
 """
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
@@ -33,7 +32,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from hot_pixel_polarity import RECORDINGS  # noqa: E402
+from hot_pixel_polarity import per_recording  # noqa: E402
 
 #: hot pixels named by ../shared/real/README.md, (x, y)
 README_HOT = {"dvxplorer_person": ((187, 105), (204, 157), (241, 196), (307, 97))}
@@ -78,16 +77,9 @@ def measure(path: Path, name: str, factor: float, min_hz: float) -> dict:
 
 def main() -> int:
     from rdnet.calib.report import write_json
-    from rdnet.config import load_params, section
     from rdnet.eval.report import write_text_atomic
-    cfg = section(load_params(ROOT / "params.yaml"), "restore")
-    rows, notes = {}, []
-    for name, path in RECORDINGS.items():
-        if not path.exists():
-            notes.append(f"{name}: {path} absent, skipped")
-            continue
-        rows[name] = measure(path, name, cfg.hot_pixel_factor, cfg.hot_pixel_min_hz)
-        print(name, json.dumps(rows[name]), flush=True)
+    cfg, rows, notes = per_recording(lambda name, path, c: measure(path, name, c.hot_pixel_factor,
+                                                                   c.hot_pixel_min_hz))
     out = ROOT / "benchmarks" / "results" / "hot_pixel_isolation"
     write_json(out.with_suffix(".json"), {"benchmark": "hot_pixel_isolation", "hot_pixel_factor": cfg.hot_pixel_factor,
                                           "hot_pixel_min_hz": cfg.hot_pixel_min_hz, "recordings": rows, "notes": notes})

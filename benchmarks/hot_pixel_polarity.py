@@ -52,7 +52,10 @@ def polarity(path: Path, factor: float, min_hz: float) -> dict:
             "model_fit": {k: model[k] for k in ("hot_pixel_on_fraction", "hot_pixel_polarity_concentration")}}
 
 
-def main() -> int:
+def per_recording(measure) -> tuple:
+    """``(restore config, {name: measure(name, path, cfg)}, notes)`` over :data:`RECORDINGS`,
+    the absent ones skipped with a note (``cfg``: the ``restore`` section of params.yaml,
+    whose hot-pixel factor and minimum rate the restore pass uses)."""
     from rdnet.config import load_params, section
     cfg = section(load_params(ROOT / "params.yaml"), "restore")
     rows, notes = {}, []
@@ -60,8 +63,13 @@ def main() -> int:
         if not path.exists():
             notes.append(f"{name}: {path} absent, skipped")
             continue
-        rows[name] = polarity(path, cfg.hot_pixel_factor, cfg.hot_pixel_min_hz)
-        print(name, json.dumps({k: v for k, v in rows[name].items() if k != "per_hot_pixel_on_fraction"}), flush=True)
+        rows[name] = measure(name, path, cfg)
+        print(name, json.dumps(rows[name]), flush=True)
+    return cfg, rows, notes
+
+
+def main() -> int:
+    cfg, rows, notes = per_recording(lambda name, path, c: polarity(path, c.hot_pixel_factor, c.hot_pixel_min_hz))
     out = ROOT / "benchmarks" / "results" / "hot_pixel_polarity"
     out.with_suffix(".json").write_text(json.dumps({
         "benchmark": "hot_pixel_polarity", "hot_pixel_factor": cfg.hot_pixel_factor,
