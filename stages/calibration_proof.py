@@ -26,7 +26,7 @@ def main(args, params):
     if rd is not None and args.oversample > 1:
         # the truth from frames rendered denser: the calibration's own interpolation is imperfect
         key = f"oversample{args.oversample}"
-        todo.append(Block(key, rd.cases, args.out / key, dict(cfg=cfg, interpolate=interp, oversample=args.oversample,
+        todo.append(Block(key, rd.cases, args.out / key, only=rd.only, kw=dict(cfg=cfg, interpolate=interp, oversample=args.oversample,
                                                               truth_warmup_us=args.truth_warmup_us,
                                                               truth_preroll_us=args.truth_preroll_us)))
     # the cases of all blocks share the workers, the slow circuit cases first

@@ -469,12 +469,19 @@ def generator_dir(out_dir: str | Path, generator: str) -> Path:
 class Block:
     """A list of cases run by :func:`run_proof` from a fresh ``default_rng(seed)`` (so its
     results do not depend on what else runs, nor where), reports in ``out_dir``; ``kw``:
-    further :func:`run_proof` arguments."""
+    further :func:`run_proof` arguments. ``only``: the names of the cases to run (None:
+    all); the draws are still taken for every case of ``cases``, so a case run alone gets
+    the draws, and the result, it gets in the whole block."""
 
     key: str
     cases: tuple
     out_dir: Path | None
     kw: dict = field(default_factory=dict)
+    only: frozenset | None = None
+
+    @property
+    def to_run(self) -> tuple:
+        return tuple(c for c in self.cases if self.only is None or c.name in self.only)
 
 
 def _run_job(job: tuple) -> dict:
@@ -491,7 +498,8 @@ def run_blocks(blocks: Sequence[Block], seed: int, workers: int = 1) -> dict[str
     for b in blocks:
         rng = np.random.default_rng(seed)
         spec = b.kw.get("spec", SceneSpec())
-        jobs += [(b, c, case_draws(c, spec, rng)) for c in b.cases]
+        jobs += [(b, c, d) for c, d in [(c, case_draws(c, spec, rng)) for c in b.cases]
+                 if b.only is None or c.name in b.only]
     if workers <= 1 or len(jobs) <= 1:
         rows = [_run_job(j) for j in jobs]
     else:
@@ -503,21 +511,24 @@ def run_blocks(blocks: Sequence[Block], seed: int, workers: int = 1) -> dict[str
             rows = [futures[i].result() for i in range(len(jobs))]
     out, k = {}, 0
     for b in blocks:
-        out[b.key] = proof_metrics(rows[k:k + len(b.cases)], b.out_dir)
-        k += len(b.cases)
+        n = len(b.to_run)
+        out[b.key] = proof_metrics(rows[k:k + n], b.out_dir)
+        k += n
     return out
 
 
 def generator_blocks(out_dir: str | Path | None, *, generator: str = "both", quick: bool = False,
                      names: Sequence[str] | None = None, **kw) -> list[Block]:
     """One :class:`Block` per generator of :func:`cases_for` (only the cases in ``names``
-    when given; a generator left without cases is skipped); reports go to
+    run when given, with the draws they get in the whole list: a case reruns as in the
+    stage; a generator left without cases is skipped); reports go to
     :func:`generator_dir`. ``kw``: further :func:`run_proof` arguments."""
     blocks = []
+    only = None if names is None else frozenset(names)
     for gen, cases in cases_for(generator, quick).items():
-        cases = tuple(c for c in cases if names is None or c.name in names)
-        if cases:
-            blocks.append(Block(gen, cases, None if out_dir is None else generator_dir(out_dir, gen), dict(kw)))
+        if any(only is None or c.name in only for c in cases):
+            blocks.append(Block(gen, cases, None if out_dir is None else generator_dir(out_dir, gen), dict(kw),
+                                only=only))
     return blocks
 
 

@@ -106,6 +106,20 @@ def test_run_generators_fresh_rng_per_generator_folders_and_names(monkeypatch, t
     assert list(out) == ["rdnet"] and [r["out"] for r in out["rdnet"]["cases"]] == [None]
 
 
+def test_named_cases_get_the_draws_of_the_whole_list(monkeypatch):
+    """A case run alone (``--cases``) reruns as in the stage: its draws are those it gets
+    when every case of its generator runs, not those of a shorter list."""
+    import rdnet.calib.proof as proof
+    monkeypatch.setattr(proof, "run_case", _fake_row)
+    full = cases_for("circuit")["circuit"]
+    names = [full[5].name, full[2].name]
+    out = proof.run_generators(None, 7, generator="circuit", names=names)["circuit"]["cases"]
+    draws = dict(zip([c.name for c in full], _fresh_draws(full, 7)))
+    assert [r["case"] for r in out] == [full[2].name, full[5].name]        # in the list's order
+    assert [r["seed"] for r in out] == [draws[full[2].name], draws[full[5].name]]
+    assert _fresh_draws([full[5]], 7) != [draws[full[5].name]]            # a shorter list draws otherwise
+
+
 def test_run_blocks_in_processes_equals_serial(monkeypatch, tmp_path):
     """The stage runs the cases of all blocks in worker processes: the same rows in the same
     order as a serial run, each block's draws from its own default_rng(seed) (run_case
