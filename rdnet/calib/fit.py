@@ -620,14 +620,16 @@ def screen(obj: Objective, values: dict, effect: Effect, points: int, beta: floa
     return evs, grid, keep
 
 
-def screen_gains(search: Objective, fine: Objective, values: dict, beta: float) -> dict:
+def screen_gains(search: Objective, fine: Objective, values: dict, beta: float) -> tuple[dict, dict | None]:
     """Round-1 screen of every candidate effect (``cfg.candidates`` or all absent ones) on
     top of ``values``: effect name -> the fraction of the fit discrepancy its best screen
     point removes (each on its own level: additive effects on ``fine``, the others on
     ``search``). The evaluations are memoised, so the forward selection's first round
-    reuses them."""
+    reuses them. Returns ``(gains, values)``: ``values`` are the best effect's refined
+    values on top of ``values`` (None when no effect was screened)."""
     cfg = search.ctx.cfg
     out, screens = {}, {}
+    best_v = None
     for eff in absent_effects(search.degrade):
         if cfg.candidates and eff.name not in cfg.candidates:
             continue
@@ -644,8 +646,12 @@ def screen_gains(search: Objective, fine: Objective, values: dict, beta: float) 
         # too, so that neither kind of screen is favoured (memoised for the interpolation kept)
         eff, obj, evs, grid, keep, ref = screens[max(out, key=out.get)]
         v = first_fit(obj, values, eff, evs, grid, keep, beta)
+        # (threshold mismatch is refined on its own statistic too, so its refined point
+        # can fit worse than its best screen point)
+        at = min(evs, key=lambda e: e.fit_mean)
+        best_v = dict(v) if obj(v).fit_mean <= at.fit_mean else dict(at.values)
         out[eff.name] = max(out[eff.name], (ref - obj(v).fit_mean) / max(ref, 1e-12))
-    return out
+    return out, best_v
 
 
 def first_fit(obj: Objective, values: dict, effect: Effect, screened: list[Evaluation],

@@ -85,7 +85,7 @@ def markdown(cal: Calibration, figures: list[str]) -> str:
               ", ".join(f"{k} = {v:.4g}" for k, v in r["basic_refit"].items()) or "(nothing)", ""]
     fi = r.get("frame_interpolation")
     if fi and len(fi["candidates"]) > 1:
-        lines += [f"Frame interpolation (nuisance choice, lowest reachable fit discrepancy): "
+        lines += [f"Frame interpolation (nuisance choice, lowest reachable fit discrepancy on the final pixel sample): "
                   f"**{fi['chosen']}**; " + ", ".join(
                       f"{m} fit {c['fit_after_basic_refit']:.3f} after the basic refit, {c['fit_reachable']:.3f} "
                       f"with {c['best_screened_effect']} / held-out {c['heldout_after_basic_refit']:.3f} "

@@ -308,3 +308,28 @@ def test_mixed_polarity_hot_pixels_get_their_concentration():
     assert abs(p["hot_pixel_fraction"] - 0.01) <= 0.25 * 0.01, p
     assert abs(p["hot_pixel_hz"] - 100.0) <= 25.0, p
     assert abs(p["hot_pixel_on_fraction"] - 0.7) < 0.15 and 1.0 < p["hot_pixel_polarity_concentration"] < 6.0, p
+
+
+def test_interpolation_choice_read_on_the_final_pixel_sample():
+    """The true events come from flow frames, which drag bright texture across the still
+    illumination edge into the dark column next to it (column 23 of 48: odd, so a search
+    sample of every 2nd column never sees it). Judged on the search sample, 'selected'
+    (linear blending along the edge) looked as good as flow and could be kept by seed noise;
+    judged on the final sample, flow is kept, and its basic refit fits better there."""
+    flow = dataclasses.replace(INTERP, method="flow")
+    case = calib_cases.ProofCase("asymmetry_back_and_forth", "onoff_asymmetry", {}, {"onoff_ratio": 1.25},
+                                 motion="backforth")
+    rec, truth = calib_cases.make_recording(case, calib_cases.SPEC, SENSOR, np.random.default_rng(21), 1, flow)
+    # the dark column at the edge holds far more of the events than any even column
+    cols = np.bincount(rec.events.x, minlength=48)
+    assert cols[23] > 3 * np.max(cols[0:22:2])
+    cfg = dataclasses.replace(CFG, candidates=("onoff_asymmetry",), interpolation=("flow", "selected"),
+                              search_max_sim_steps=300_000)
+    cal = calibrate(rec, SENSOR, DegradeConfig(), cfg, seed=0, interpolate=flow, source="edge.h5",
+                    progress=False)
+    assert cal.report["setup"]["search"]["search_stride"] == 2
+    fi = cal.report["frame_interpolation"]
+    assert fi["chosen"] == "flow" and fi["level"].startswith("final pixel sample")
+    c = fi["candidates"]
+    assert c["flow"]["fit_after_basic_refit"] < c["selected"]["fit_after_basic_refit"]
+    assert c["flow"]["fit_reachable"] < c["selected"]["fit_reachable"]

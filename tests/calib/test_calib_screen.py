@@ -38,8 +38,9 @@ def test_the_reach_is_measured_between_grid_points():
     assert grid[2] == pytest.approx(1000.0) and grid[3] == pytest.approx(7071.07, rel=1e-4)
     at_grid = (BASE_FIT - min(e.fit_mean for e in evs)) / BASE_FIT
     assert at_grid == pytest.approx((2.0 - math.log(2.0) ** 2) / 3.0)         # at 1000 us
-    gains = screen_gains(obj, obj, {}, 1.0)
+    gains, best = screen_gains(obj, obj, {}, 1.0)
     v = first_fit(obj, {}, EFFECTS["refractory_period"], evs, grid, keep, 1.0)
+    assert best == v                                                      # the refined values
     assert 1400.0 < v["refractory_us"] < 2900.0                             # 4 golden steps in [141, 7071]
     assert gains["refractory_period"] == pytest.approx((BASE_FIT - obj(v).fit_mean) / BASE_FIT)
     assert gains["refractory_period"] > at_grid + 0.1
