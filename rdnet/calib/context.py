@@ -243,7 +243,7 @@ def upsample_sampled(grey: np.ndarray, t: np.ndarray, interpolate, log_eps: floa
         f0, f1 = grey[i], grey[i + 1]
         dt = int(t[i + 1] - t[i])
         cap_i = min(cfg.max_upsample - 1, dt - 1)
-        pi = ip.PairInterpolator(f0, f1, cfg, weight, flows, i)
+        pi = ip.pair_interpolator(grey, i, f0, f1, cfg, weight, flows, eps)
         mid = np.empty((0,) + f0[::s, ::s].shape, np.float32)
         if cap_i > 0:
             k = min(cap_i, max(0, math.ceil(pi.motion_estimate(eps, cfg.pixel_quantile) / cfg.max_log_step) - 1))

@@ -55,7 +55,7 @@ def test_linear_is_exact_blend():
         np.testing.assert_allclose(out[k], (1 - t) * f0 + t * f1, rtol=1e-6, atol=1e-6)
 
 
-@pytest.mark.parametrize("method", ["flow", "linear"])
+@pytest.mark.parametrize("method", ["flow", "linear", "cubic"])
 def test_log_step_bound_and_timestamps(texture, method):
     shifts = [(1.5 * i, 0.5 * i) for i in range(4)]
     ims = _translated(texture, shifts) * 0.8 + 0.1
@@ -121,7 +121,7 @@ def test_config_validation_and_bad_input():
     with pytest.raises(ConfigError, match="interpolate.max_log_step"):
         InterpolateConfig(max_log_step=0)
     with pytest.raises(ConfigError, match="interpolate.method"):
-        from_dict(InterpolateConfig, {"method": "cubic"}, "interpolate")
+        from_dict(InterpolateConfig, {"method": "spline"}, "interpolate")
     with pytest.raises(ConfigError, match="interpolate.bogus"):
         from_dict(InterpolateConfig, {"bogus": 1}, "interpolate")
     with pytest.raises(ConfigError, match="interpolate.max_upsample"):

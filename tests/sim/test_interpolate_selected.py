@@ -25,13 +25,17 @@ def _moving(tex, n, step_px, h=64, w=64, margin=24):
     return np.stack(out).astype(np.float32)
 
 
-def test_weights_pure_flow_and_pure_linear_frames(texture):
-    f0, f1 = _moving(texture, 2, 3.0)
-    for w, method in ((1.0, "flow"), (0.0, "linear")):
-        sel = PairInterpolator(f0, f1, InterpolateConfig(method="selected"), np.full(f0.shape, w, np.float32))
-        ref = PairInterpolator(f0, f1, InterpolateConfig(method=method))
+def test_weights_pure_flow_and_pure_spline_frames(texture):
+    """Weight 1: the flow frame; weight 0: the log-intensity spline of method 'cubic' through
+    the same four frames (the linear cross-fade before session 34)."""
+    f = _moving(texture, 4, 3.0)
+    for w, method in ((1.0, "flow"), (0.0, "cubic")):
+        sel = PairInterpolator(f[1], f[2], InterpolateConfig(method="selected"), np.full(f[1].shape, w, np.float32),
+                               before=f[0], after=f[3])
+        ref = PairInterpolator(f[1], f[2], InterpolateConfig(method=method), before=f[0], after=f[3])
         for t in (0.25, 0.5):
             np.testing.assert_array_equal(sel.frame(t), ref.frame(t))
+    f0, f1 = f[:2]
     # no weight given: flow everywhere
     np.testing.assert_array_equal(PairInterpolator(f0, f1, InterpolateConfig(method="selected")).frame(0.3),
                                   PairInterpolator(f0, f1, InterpolateConfig(method="flow")).frame(0.3))
