@@ -28,7 +28,8 @@ Interpolators:
   occluded pixel to the other input right after t = 0: log steps of up to 2.8 that no
   upsampling removes; benchmarks/bench_interpolate.py).
 * ``linear``: plain blending ``(1 - t) I_0 + t I_1`` (baseline / fallback).
-* ``cubic``: a Catmull-Rom spline through four frames (``i - 1, i, i + 1, i + 2``) of
+* ``cubic``: a Catmull-Rom spline through four frames (``i - 1, i, i + 1, i + 2``; at the
+  ends of a sequence the missing one's log intensity is extrapolated linearly) of
   ``log(I + eps)`` per pixel, ``exp(.) - eps``. Piecewise-linear interpolation (``linear``,
   and ``flow``'s blend of its two warps) turns every pixel's trajectory only at the input
   frames; a DVS pixel that turns must first undo its last step (hysteresis), so its next
@@ -39,13 +40,13 @@ Interpolators:
   pixel's turning points between the frames, where the scene has them, and has continuous
   slope at the frames. It uses no flow (a cross-fade with curvature), and overshoots where
   the log intensity turns, as a sampled smooth signal does.
-* ``selected``: ``flow`` where the flow predicts this sequence's frames better than a
-  cross-fade, ``cubic`` elsewhere (:func:`flow_weight`): every inner frame is predicted
-  from its two neighbours by flow and by a cross-fade, each one's squared log-luminance
-  error is summed over the frames and smoothed (Gaussian, ``select_sigma_px``), the pixels
-  where flow's is lower get weight 1, the others 0, and that map, blurred by half the
-  sigma, weights the flow frame against the spline's at every pixel (against the linear
-  cross-fade before session 34). It is meant for scenes
+* ``selected``: ``flow`` where the flow predicts this sequence's frames better than the
+  spline of ``cubic``, the spline elsewhere (:func:`flow_weight`): every inner frame is
+  predicted from its two neighbours by flow and by the spline (knots ``i - 3, i - 1, i + 1,
+  i + 3``), each one's squared log-luminance error is summed over the frames and smoothed
+  (Gaussian, ``select_sigma_px``), the pixels where flow's is lower get weight 1, the others
+  0, and that map, blurred by half the sigma, weights the flow frame against the spline's at
+  every pixel (before session 34: the linear cross-fade, in the comparison and the blend). It is meant for scenes
   whose motion and lighting differ in kind: flow warps everything it sees, so it drags a
   still shadow edge along with the textured surface moving under it, while a cross-fade
   keeps such an edge in place but turns motion into a fade (issue 12;
@@ -497,8 +498,8 @@ class PairInterpolator:
         ``flows``: the flows of pair ``index`` come from (or go to) this cache, shared with
         other interpolations of the same frames (:class:`PairFlowCache`). ``before``,
         ``after``: methods 'cubic' and 'selected', the frames before ``f0`` and after ``f1`` (None at
-        the ends of a sequence: ``f0`` / ``f1`` again); ``log_eps``: its log's offset
-        (``cfg.log_eps`` when set)."""
+        the ends of a sequence: the log intensity extrapolated linearly from the pair);
+        ``log_eps``: its log's offset (``cfg.log_eps`` when set)."""
         self.f0 = _as_float(f0, "f0")
         self.f1 = _as_float(f1, "f1")
         if self.f0.shape != self.f1.shape:
@@ -517,13 +518,16 @@ class PairInterpolator:
         self._logs = None
         if cfg.method in SPLINE_METHODS:
             e = np.float32(cfg.log_eps if cfg.log_eps is not None else log_eps)
-            ends = [self.f0 if before is None else _as_float(before, "before"), self.f0, self.f1,
-                    self.f1 if after is None else _as_float(after, "after")]
-            for name, f in zip(("before", "after"), (ends[0], ends[3])):
-                if f.shape != self.f0.shape:
-                    raise ValidationError(name, f"shape {f.shape} != f0 shape {self.f0.shape}")
+            for name, f in (("before", before), ("after", after)):
+                if f is not None and np.shape(f) != self.f0.shape:
+                    raise ValidationError(name, f"shape {np.shape(f)} != f0 shape {self.f0.shape}")
             self._eps = e
-            self._logs = tuple(np.log(f + e) for f in ends)
+            l1, l2 = np.log(self.f0 + e), np.log(self.f1 + e)
+            # a missing end knot is extrapolated linearly (2 l1 - l2), so the spline is exact on
+            # a log-linear ramp at the ends of a sequence too
+            l0 = 2 * l1 - l2 if before is None else np.log(_as_float(before, "before") + e)
+            l3 = 2 * l2 - l1 if after is None else np.log(_as_float(after, "after") + e)
+            self._logs = (l0, l1, l2, l3)
         self._grid = 1                          # the stride of ``on_grid`` while inside it
         self._shared = None
         if flows is not None:
@@ -734,9 +738,10 @@ def flow_weight(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig, lo
                 ) -> np.ndarray:
     """The per-pixel weight of the flow frame of method 'selected' (module docstring), (H, W)
     float32 in [0, 1]: every inner frame ``i`` of ``images`` ((N, H, W[, 3]) linear) is
-    predicted at its own time from frames ``i - 1`` and ``i + 1`` by flow and by linear
-    blending; ``E_m`` = the squared error of ``log(Y + eps)`` (luminance) summed over the
-    frames; weight 1 where ``G * E_flow < G * E_linear`` (``G``: a Gaussian of sigma
+    predicted at its own time from frames ``i - 1`` and ``i + 1`` by flow and by the spline
+    of method 'cubic' (through frames ``i - 3, i - 1, i + 1, i + 3``); ``E_m`` = the squared
+    error of ``log(Y + eps)`` (luminance) summed over the frames; weight 1 where
+    ``G * E_flow < G * E_spline`` (``G``: a Gaussian of sigma
     ``cfg.select_sigma_px``), else 0, then blurred by a Gaussian of half that sigma. With
     fewer than 3 frames: 1 everywhere. The predictions span two intervals, so they test
     each method on twice the motion it will interpolate; the choice is made once per
@@ -749,17 +754,20 @@ def flow_weight(images: np.ndarray, t_us: np.ndarray, cfg: InterpolateConfig, lo
     t = np.asarray(t_us, np.int64)
     flow = dataclasses.replace(cfg, method="flow")
     err_flow = np.zeros(shape, np.float64)
-    err_linear = np.zeros(shape, np.float64)
+    err_spline = np.zeros(shape, np.float64)
+    spline = dataclasses.replace(cfg, method="cubic")
     for i in range(1, n - 1):
         pi = PairInterpolator(images[i - 1], images[i + 1], flow)
+        sp = PairInterpolator(images[i - 1], images[i + 1], spline, before=images[i - 3] if i >= 3 else None,
+                              after=images[i + 3] if i + 3 < n else None, log_eps=float(eps))
         s = (t[i] - t[i - 1]) / (t[i + 1] - t[i - 1])
         truth = np.log(luminance(_as_float(images[i])) + eps)
         err_flow += np.square(np.log(luminance(pi.frame(s)) + eps) - truth)
-        err_linear += np.square(np.log(luminance(pi.crossfade(s)) + eps) - truth)
+        err_spline += np.square(np.log(luminance(sp.frame(s)) + eps) - truth)
     sigma = float(cfg.select_sigma_px)
     pooled_flow = cv2.GaussianBlur(err_flow.astype(np.float32), (0, 0), sigma)
-    pooled_linear = cv2.GaussianBlur(err_linear.astype(np.float32), (0, 0), sigma)
-    chosen = (pooled_flow < pooled_linear).astype(np.float32)
+    pooled_spline = cv2.GaussianBlur(err_spline.astype(np.float32), (0, 0), sigma)
+    chosen = (pooled_flow < pooled_spline).astype(np.float32)
     return np.clip(cv2.GaussianBlur(chosen, (0, 0), sigma / 2), 0.0, 1.0)
 
 
@@ -767,7 +775,7 @@ def pair_interpolator(images: np.ndarray, i: int, f0: np.ndarray, f1: np.ndarray
                       weight: np.ndarray | None, flows: "PairFlowCache | None", log_eps: float) -> PairInterpolator:
     """The :class:`PairInterpolator` of frames ``i`` and ``i + 1`` of ``images`` (``f0``,
     ``f1``: those frames as float32), with the neighbouring frames when ``cfg.method`` is
-    'cubic' or 'selected' (the pair's own ends at the ends of the sequence)."""
+    'cubic' or 'selected' (none at the ends of the sequence: extrapolated)."""
     before = after = None
     if cfg.method in SPLINE_METHODS:
         n = images.shape[0]

@@ -20,8 +20,10 @@ def _from_log(values, shape=(4, 5)):
 def test_exact_on_a_sequence_linear_in_log():
     f = _from_log([-2.0, -1.5, -1.0, -0.5])
     pi = PairInterpolator(f[1], f[2], CUBIC, before=f[0], after=f[3])
+    ends = PairInterpolator(f[1], f[2], CUBIC)     # a sequence's ends: the missing knots extrapolated
     for t in (0.0, 0.3, 0.5, 1.0):
         np.testing.assert_allclose(np.log(pi.frame(t) + EPS), -1.5 + 0.5 * t, atol=2e-6)
+        np.testing.assert_allclose(np.log(ends.frame(t) + EPS), -1.5 + 0.5 * t, atol=2e-6)
 
 
 def test_turns_between_the_frames():
