@@ -32,11 +32,16 @@ METHODS = ("flow", "linear", "selected")
 EDGE_COL = 31
 
 
-def counts_map(images: np.ndarray, t_us: np.ndarray) -> np.ndarray:
-    """(H, W) event counts of the ideal sensor on upsampled frames (seed 0)."""
+def ideal_events(images: np.ndarray, t_us: np.ndarray):
+    """The ideal sensor's events (SensorConfig(), no degradation, seed 0) on upsampled frames."""
     from rdnet.calib.fit import default_simulate
     from rdnet.sim.settings import DegradeConfig, SensorConfig
-    ev = default_simulate(images, t_us, SensorConfig(), DegradeConfig(), np.random.default_rng(0))
+    return default_simulate(images, t_us, SensorConfig(), DegradeConfig(), np.random.default_rng(0))
+
+
+def counts_map(images: np.ndarray, t_us: np.ndarray) -> np.ndarray:
+    """(H, W) event counts of :func:`ideal_events`."""
+    ev = ideal_events(images, t_us)
     h, w = images.shape[1:3]
     return np.bincount(ev.y.astype(np.int64) * w + ev.x, minlength=h * w).reshape(h, w).astype(np.int64)
 

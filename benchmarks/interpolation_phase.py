@@ -23,11 +23,16 @@ events in each fifth of the interval and the mean phase (0.5 = even).
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import sys
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from calib_stability import stage_sets  # noqa: E402
+from flow_edge_drag import ideal_events  # noqa: E402
 REAL = ROOT / "data" / "real" / "davis346_road" / "davis346.aedat4"
 METHODS = ("flow", "linear", "cubic", "selected")
 BINS = 5
@@ -54,16 +59,13 @@ def davis346() -> list[dict]:
     from rdnet.calib.fit import Objective
     from rdnet.config import load_params, section
     from rdnet.events.io import load
-    sets = ["degrade.threshold_sigma=0", "degrade.cutoff_hz=0", "degrade.sample_period_us=0", "degrade.refractory_us=0",
-            "degrade.shot_noise_hz=0", "degrade.leak_hz=0", "degrade.hot_pixel_fraction=0", "degrade.hot_pixel_hz=0",
-            "degrade.jitter_us=0", "degrade.latency_us=0", "degrade.onoff_ratio=1"]
-    p = load_params(ROOT / "params.yaml", sets)
+    p = load_params(ROOT / "params.yaml", stage_sets(ROOT / "dvc.yaml"))     # as calibrate_real
     rec = load(REAL)
     cfg, sensor, degrade = section(p, "calibrate"), section(p, "sensor"), section(p, "degrade")
     ft = rec.frames.t_us.astype(np.int64)
     rows = [row("recorded", phases(rec.events.t, ft))]
     base = section(p, "interpolate")
-    for icfg in interpolation_configs(type(cfg)(**{**cfg.__dict__, "interpolation": METHODS}), base):
+    for icfg in interpolation_configs(dataclasses.replace(cfg, interpolation=METHODS), base):
         ctx = build_context(rec, cfg, sensor.log_eps, interpolate=icfg, source=str(REAL))
         ev = Objective(ctx, sensor, degrade, [0]).simulate({"threshold_scale": 2.3}, 0)
         rows.append(row(f"simulated, {icfg.method}", phases(ev.t, ft)))
@@ -71,22 +73,17 @@ def davis346() -> list[dict]:
 
 
 def proof_scene(motion: str, texture_seed: int = 1) -> list[dict]:
-    from rdnet.calib.fit import default_simulate
     from rdnet.calib.scene import SceneSpec, draw_texture, render
     from rdnet.sim.interpolate import InterpolateConfig, upsample_all
-    from rdnet.sim.settings import DegradeConfig, SensorConfig
     spec = SceneSpec(motion=motion)
     tex = draw_texture(spec, np.random.default_rng(texture_seed))
     frames, _ = render(spec, None, texture=tex)
     ft = frames.t_us.astype(np.int64)
-
-    def sim(ims, t):
-        return default_simulate(ims, t, SensorConfig(), DegradeConfig(), np.random.default_rng(0))
     fine, _ = render(spec, None, fps_hz=6400.0, texture=tex)
-    rows = [row("6400 fps reference", phases(sim(fine.images, fine.t_us).t, ft))]
+    rows = [row("6400 fps reference", phases(ideal_events(fine.images, fine.t_us).t, ft))]
     for m in METHODS:
         ims, t = upsample_all(frames.images, frames.t_us, InterpolateConfig(method=m, max_upsample=16), warn=False)
-        rows.append(row(f"100 fps, {m}", phases(sim(ims, t).t, ft)))
+        rows.append(row(f"100 fps, {m}", phases(ideal_events(ims, t).t, ft)))
     return rows
 
 
