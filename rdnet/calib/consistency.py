@@ -166,20 +166,27 @@ def moment_scores(m: np.ndarray, gain: float = 1.0) -> dict:
     return out
 
 
-def _interval_sums(events: Events, ctx: FrameSeries, shift_us: float, flat: np.ndarray, kid: np.ndarray,
-                   y: np.ndarray, n_int: int) -> np.ndarray:
-    """(K, 5) per frame interval: the sums x, x^2, x y, y, y^2 over the pixel-intervals
-    ``flat`` (flat index k * P + pixel, interval ``kid``, log change ``y``), x = ON - OFF
-    count of the events shifted earlier by ``shift_us``."""
+def _shift_sums(events: Events, ctx: FrameSeries, shifts: np.ndarray, flat: np.ndarray, kid: np.ndarray,
+                y: np.ndarray, n_int: int) -> np.ndarray:
+    """(S, K, 5) per shift and frame interval: the sums x, x^2, x y, y, y^2 over the
+    pixel-intervals ``flat`` (flat index k * P + pixel, interval ``kid``, log change ``y``),
+    x = ON - OFF count of the events shifted earlier by each of ``shifts``."""
     a = events.array
-    t = a["t"].astype(np.float64) - float(shift_us)
-    k = np.searchsorted(ctx.frame_t, t, side="left") - 1               # (t_k, t_{k+1}] -> k
-    ok = (k >= 0) & (k < n_int)
-    key = k[ok] * ctx.n_pixels + a["y"][ok].astype(np.int64) * ctx.width + a["x"][ok]
-    sign = np.where(a["p"][ok].astype(bool), 1.0, -1.0)
-    net = np.bincount(key, weights=sign, minlength=n_int * ctx.n_pixels)
-    x = net[flat]
-    return np.stack([np.bincount(kid, weights=w, minlength=n_int) for w in (x, x * x, x * y, y, y * y)], 1)
+    t = a["t"].astype(np.float64)
+    pix = a["y"].astype(np.int64) * ctx.width + a["x"]
+    sign = np.where(a["p"].astype(bool), 1.0, -1.0)
+    slot = np.full(n_int * ctx.n_pixels, -1, np.int64)          # pixel-interval -> index in flat
+    slot[flat] = np.arange(flat.size)
+    out = np.empty((len(shifts), n_int, 5))
+    out[:, :, 3:] = np.stack([np.bincount(kid, weights=w, minlength=n_int) for w in (y, y * y)], 1)
+    for i, s in enumerate(shifts):
+        k = np.searchsorted(ctx.frame_t, t - float(s), side="left") - 1      # (t_k, t_{k+1}] -> k
+        ok = (k >= 0) & (k < n_int)
+        idx = slot[k[ok] * ctx.n_pixels + pix[ok]]
+        keep = idx >= 0
+        x = np.bincount(idx[keep], weights=sign[ok][keep], minlength=flat.size)
+        out[i, :, :3] = np.stack([np.bincount(kid, weights=w, minlength=n_int) for w in (x, x * x, x * y)], 1)
+    return out
 
 
 def _corr_of_sums(s: np.ndarray, n: np.ndarray) -> np.ndarray:
@@ -231,7 +238,7 @@ def latency_scan(events: Events, ctx: FrameSeries, *, max_shift_us: float, step_
     y = dL.ravel()[flat]
     n_steps = int(np.floor(max_shift_us / step_us + 1e-9))
     shifts = step_us * np.arange(-n_steps, n_steps + 1, dtype=np.float64)
-    sums = np.stack([_interval_sums(events, ctx, s, flat, kid, y, n_int) for s in shifts])   # (S, K, 5)
+    sums = _shift_sums(events, ctx, shifts, flat, kid, y, n_int)                 # (S, K, 5)
     per_int = np.bincount(kid, minlength=n_int).astype(np.float64)
     curve = _corr_of_sums(sums.sum(1), per_int.sum())
     est = _peak(shifts, curve)

@@ -90,6 +90,15 @@ def markdown(cal: Calibration, figures: list[str]) -> str:
                       f"{m} fit {c['fit_after_basic_refit']:.3f} after the basic refit, {c['fit_reachable']:.3f} "
                       f"with {c['best_screened_effect']} / held-out {c['heldout_after_basic_refit']:.3f} "
                       f"({c['simulated_frames']} frames)" for m, c in fi["candidates"].items()), ""]
+    lt = r.get("latency_timing")
+    if lt and lt.get("recorded_lag_us") is not None:
+        ideal = ", ".join(f"{m} {v / 1000:.3g}" for m, v in lt["ideal_lag_us"].items() if v is not None)
+        lo, hi = lt["latency_range_us"]
+        lines += [f"Events behind the frames (event-frame consistency of time-shifted events, no simulator): "
+                  f"recorded {lt['recorded_lag_us'] / 1000:.3g} ms (95 % {lt['recorded_ci95_us'][0] / 1000:.3g}-"
+                  f"{lt['recorded_ci95_us'][1] / 1000:.3g}); an ideal sensor at the basic refit: {ideal} ms"
+                  + (f"; so a latency between {lo / 1000:.3g} and {hi / 1000:.3g} ms" if lo is not None else "")
+                  + ".", ""]
     lines += ["## Where the base simulation differs", "", "| statistic | held-out before | after |", "|---|---|---|"]
     for k, v in d["terms_heldout_before"].items():
         lines.append(f"| {k} | {v:.3f} | {d['terms_heldout_after'][k]:.3f} |")

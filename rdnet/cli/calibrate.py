@@ -68,6 +68,9 @@ def run(args) -> int:
             importer.join()       # also when the calibration fails: no import left running at exit
     paths = write_report(cal, args.out, plots=not args.no_plots)
     print(finding(cal.report))
+    flagged = [e["name"] for e in cal.report["effects"] if e["missing"] and e.get("caveats")]
+    if flagged:
+        print(f"caveats for {', '.join(flagged)}: see the section 'Caveats' of {args.out / 'report.md'}")
     print(f"wrote {', '.join(str(p) for p in paths[:2])} and {len(paths) - 2} figures "
           f"({cal.runtime_s:.1f} s, {cal.report['setup']['simulations']} simulations)")
     return 0

@@ -81,7 +81,18 @@ def test_report_schema_and_files(hot_cal, tmp_path):
     assert set(d) >= {"metric", "fit_before", "fit_after", "heldout_before", "heldout_after"}
     assert isinstance(d["metric"], str) and all(isinstance(d[k], float) for k in
                                                 ("fit_before", "fit_after", "heldout_before", "heldout_after"))
+    # how far the events trail the frames: recorded (no simulator) and an ideal sensor per
+    # interpolation tried; the truth has no latency and came from linear frames, so the
+    # latency range these give is near 0
+    lt = r["latency_timing"]
+    assert set(lt["ideal_lag_us"]) == set(CFG.interpolation)
+    lo, hi = lt["latency_range_us"]
+    assert lo == pytest.approx(lt["recorded_lag_us"] - max(lt["ideal_lag_us"].values()))
+    assert hi == pytest.approx(lt["recorded_lag_us"] - min(lt["ideal_lag_us"].values()))
+    assert lt["recorded_ci95_us"][0] <= lt["recorded_lag_us"] <= lt["recorded_ci95_us"][1]
+    assert abs(lt["ideal_lag_us"]["linear"] - lt["recorded_lag_us"]) < 1000.0 and lt["frame_interval_us"] == 10000.0
     md = (tmp_path / "out" / "report.md").read_text()
+    assert "Events behind the frames" in md
     assert md.splitlines()[2].startswith("The simulator is missing hot pixels")
     # the named effect's row shows its own statistic before -> after, as in report.json
     hot = next(e for e in r["effects"] if e["name"] == "hot_pixels")
@@ -210,6 +221,20 @@ def test_caveat_when_the_bandwidth_floor_moves_from_the_declared_one(hot_cal):
     assert caveats("bandwidth", {"cutoff_hz": 120.0, "cutoff_floor": 0.078}, declared, "flow") == []
     assert caveats("bandwidth", {"cutoff_hz": 120.0, "cutoff_floor": 0.0785}, declared, "flow") == []   # < 1 %
     assert caveats("latency", {"latency_us": 800.0}, declared, "flow") == []
+    # latency, against the frames' timing: the range is recorded lag - each ideal lag
+    timing = {"recorded_lag_us": 6000.0, "recorded_ci95_us": [5500.0, 6500.0], "frame_interval_us": 40000.0,
+              "ideal_lag_us": {"flow": 4000.0, "linear": 5500.0}, "latency_range_us": [500.0, 2000.0]}
+    (text,) = caveats("latency", {"latency_us": 8300.0}, declared, "flow", timing)
+    assert "trail the frames by 6 ms" in text and "flow 4 ms, linear 5.5 ms" in text
+    assert "between 0.5 and 2 ms" in text and "outside that range give or take 2 ms" in text
+    assert "40 ms between frames" in text
+    for inside in (1200.0, 4000.0, -1500.0):         # 2 ms (5 % of 40 ms) beyond the range still counts
+        (text,) = caveats("latency", {"latency_us": inside}, declared, "flow", timing)
+        assert "inside that range" in text
+    (text,) = caveats("latency", {"latency_us": 4100.0}, declared, "flow", timing)
+    assert "outside that range" in text
+    assert caveats("latency", {"latency_us": 1200.0}, declared, "flow",
+                   {**timing, "latency_range_us": [None, None]}) == []
     cal, _ = hot_cal
     assert all(e["caveats"] == [] for e in cal.report["effects"])      # hot pixels: nothing to flag
     assert "## Caveats" not in markdown(cal, [])

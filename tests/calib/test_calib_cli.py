@@ -53,6 +53,28 @@ def test_cli_writes_report(rec, tmp_path, capsys):
     assert r["setup"]["seeds"] == [3000, 3001, 3002]
     assert (out / "report.md").read_text().startswith("# Sim-to-real calibration")
     assert "hot pixels" in cap.out
+    assert "caveats for" not in cap.out          # nothing flagged
+
+
+def test_cli_points_to_the_caveats(rec, tmp_path, capsys, monkeypatch):
+    """A named effect with a caveat is pointed out on the console (the report has the text)."""
+    import dataclasses
+
+    from rdnet.calib import calibrate as mod
+    real = mod.calibrate
+
+    def flagged(*a, **k):
+        cal = real(*a, **k)
+        effects = [{**e, "caveats": ["a note"]} if e["missing"] else e for e in cal.report["effects"]]
+        return dataclasses.replace(cal, report={**cal.report, "effects": effects})
+    monkeypatch.setattr(mod, "calibrate", flagged)
+    path = tmp_path / "rec.h5"
+    write_recording(path, rec)
+    out = tmp_path / "out"
+    rc, cap = _run(capsys, path, "--out", out, "--params", _params(tmp_path), "--no-plots")
+    assert rc == 0, cap.err
+    assert f"caveats for hot_pixels: see the section 'Caveats' of {out / 'report.md'}" in cap.out
+    assert "- **hot_pixels**: a note" in (out / "report.md").read_text()
 
 
 @pytest.mark.parametrize("what", ["no_frames", "no_events", "disjoint"])
