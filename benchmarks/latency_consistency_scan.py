@@ -147,6 +147,92 @@ def summarise(rows: list[dict]) -> list[dict]:
     return out
 
 
+def davis346_sensitivity(rec, report: dict, cfg, min_change: float) -> dict:
+    """How much the ideal sensor's lag (and with it the latency beyond the simulation) moves
+    with the frame interpolation and the thresholds on DAVIS346, and how much the rate
+    cross-correlation that ``rdnet calibrate``'s latency comes from moves with the
+    interpolation and with where inside its frame interval each event falls (times spread
+    uniformly over the interval: recorded, simulated, both; seed 0 of the basic refit)."""
+    import copy
+
+    from rdnet.calib import stats as st
+    from rdnet.calib.context import build_context
+    from rdnet.calib.fit import Objective
+    from rdnet.sim.interpolate import InterpolateConfig
+    from rdnet.sim.settings import DegradeConfig, SensorConfig
+    lags = []
+    for method in ("flow", "linear", "cubic", "selected"):
+        for scale in (1.0, 1.5, round(float(report["basic_refit"].get("threshold_scale", 1.0)), 2)):
+            r = copy.deepcopy(report)
+            r["frame_interpolation"]["chosen"] = method
+            r["basic_refit"] = {**r["basic_refit"], "threshold_scale": scale}
+            ref = reference_scans(rec, r, cfg, 20000.0, 500.0, min_change)
+            lags.append({"interpolation": method, "threshold_scale": scale,
+                         "ideal_lag_us": ref["simulated_basic_refit"]["latency_us"],
+                         "recorded_lag_us": ref["recorded"]["latency_us"],
+                         "latency_beyond_simulation_us": ref["latency_beyond_simulation_us"]})
+    sensor = SensorConfig(**report["base_config"]["sensor"])
+    degrade = DegradeConfig(**report["base_config"]["degrade"])
+    rng = np.random.default_rng(0)
+
+    def uniform(t, ft):
+        i = np.searchsorted(ft, t, side="right") - 1
+        ok = (i >= 0) & (i < len(ft) - 1)
+        out = t.astype(np.float64)
+        out[ok] = ft[i[ok]] + rng.random(int(ok.sum())) * (ft[i[ok] + 1] - ft[i[ok]])
+        return out
+    xcorr = []
+    for method in ("flow", "linear", "cubic"):
+        ctx = build_context(rec, cfg, sensor.log_eps, source="scan",
+                            interpolate=InterpolateConfig(method=method, max_upsample=cfg.max_upsample))
+        sim = Objective(ctx, sensor, degrade, [0]).simulate(dict(report["basic_refit"]), 0)
+        edges = np.arange(ctx.t0, ctx.t1 + 1, cfg.time_bin_us)
+        mask = np.ones(len(edges) - 1, bool)
+
+        def lag(a, b) -> float:
+            ra, rb = (np.histogram(v, bins=edges)[0].astype(float) for v in (a, b))
+            return float(st.xcorr_lag_us(ra, rb, mask, float(cfg.time_bin_us), float(cfg.max_lag_us)))
+        st_, rt = sim.t.astype(np.float64), ctx.real.t.astype(np.float64)
+        xcorr.append({"interpolation": method, "as_recorded": lag(st_, rt),
+                      "simulated_times_uniform": lag(uniform(sim.t, ctx.frame_t), rt),
+                      "recorded_times_uniform": lag(st_, uniform(ctx.real.t, ctx.frame_t)),
+                      "both_uniform": lag(uniform(sim.t, ctx.frame_t), uniform(ctx.real.t, ctx.frame_t))})
+    return {"ideal_lag": lags, "rate_xcorr_lag_us": xcorr}
+
+
+def report_ranges() -> dict:
+    """The ``latency_timing`` of every committed proof report: whether the true latency lies
+    in its range (widened by the recorded lag's 95 % half-width), and by how much each named
+    latency misses its range, as a fraction of the frame interval."""
+    rows = []
+    for f in sorted(PROOF.glob("**/report.json")):
+        case = str(f.parent.relative_to(PROOF))
+        r = json.loads(f.read_text())
+        lt = r.get("latency_timing")
+        if lt is None or None in lt["latency_range_us"]:
+            continue
+        name = case.split("/")[-1]
+        kind = next((k for k in ("latency", "bandwidth", "refractory", "null") if k in name), "other")
+        truth = 0.0 if kind != "latency" else (1500.0 if "_s2" in name else 4000.0)
+        lo, hi = lt["latency_range_us"]
+        rec, ci = lt["recorded_lag_us"], lt["recorded_ci95_us"]
+        half = max(rec - ci[0], ci[1] - rec)
+        named = [e for e in r["effects"] if e["name"] == "latency" and e["missing"]]
+        fitted = named[0]["parameters"]["latency_us"] if named else None
+        miss = None if fitted is None else max(lo - fitted, fitted - hi, 0.0) / lt["frame_interval_us"]
+        rows.append({"case": case, "kind": kind, "truth_us": truth, "range_us": [lo, hi], "half_ci_us": half,
+                     "truth_inside": bool(lo - half <= truth <= hi + half), "named_latency_us": fitted,
+                     "named_miss_of_frame_interval": miss})
+    kinds = {}
+    for row in rows:
+        k = kinds.setdefault(row["kind"], {"cases": 0, "truth_inside": 0})
+        k["cases"] += 1
+        k["truth_inside"] += int(row["truth_inside"])
+    misses = [row["named_miss_of_frame_interval"] for row in rows if row["named_miss_of_frame_interval"] is not None]
+    return {"cases": rows, "by_kind": kinds, "named_latencies": len(misses),
+            "largest_named_miss_of_frame_interval": max(misses) if misses else None}
+
+
 def figure(davis: dict, calibrated_us: float | None, ref: dict | None, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -210,6 +296,36 @@ def markdown(result: dict) -> str:
             lines += ["", f"Latency beyond the simulation: **{ref['latency_beyond_simulation_us'] / 1000:.2f} ms**.", ""]
         lines += [
                   "![scan](latency_consistency_scan.png)", ""]
+    sens = result.get("davis346_sensitivity")
+    if sens:
+        lines += ["### DAVIS346: what the interpolation and the thresholds do", "",
+                  "The ideal sensor's lag behind the frames (basic-refit simulation, seed 0, every 2nd pixel) and "
+                  "the latency beyond it, per interpolation and threshold scale:", "",
+                  "| interpolation | thresholds x | ideal lag (ms) | latency beyond it (ms) |", "|---|---:|---:|---:|"]
+        for r in sens["ideal_lag"]:
+            lines.append(f"| {r['interpolation']} | {r['threshold_scale']:g} | {r['ideal_lag_us'] / 1000:.2f} | "
+                         f"{r['latency_beyond_simulation_us'] / 1000:.2f} |")
+        lines += ["", "The rate cross-correlation `rdnet calibrate`'s latency guess reads (`xcorr_lag_us`, "
+                  "2 ms bins, basic refit, seed 0), as simulated and recorded, and with the events' times spread "
+                  "uniformly inside their frame intervals:", "",
+                  "| interpolation | as recorded (ms) | simulated times uniform | recorded times uniform | both |",
+                  "|---|---:|---:|---:|---:|"]
+        for r in sens["rate_xcorr_lag_us"]:
+            lines.append(f"| {r['interpolation']} | {r['as_recorded'] / 1000:.1f} | {r['simulated_times_uniform'] / 1000:.1f} "
+                         f"| {r['recorded_times_uniform'] / 1000:.1f} | {r['both_uniform'] / 1000:.1f} |")
+        lines.append("")
+    rr = result.get("report_ranges")
+    if rr:
+        lines += ["## The calibration reports' `latency_timing` (the proof)", "",
+                  "The range each committed proof report gives (recorded lag minus each interpolation's ideal lag), "
+                  "widened by the recorded lag's 95 % half-width: how often it holds the truth.", "",
+                  "| kind of case | cases | truth inside |", "|---|---:|---:|"]
+        for k, v in rr["by_kind"].items():
+            lines.append(f"| {k} | {v['cases']} | {v['truth_inside']} |")
+        lines += ["", f"Named latencies: {rr['named_latencies']}; the largest miss of its range by a named latency: "
+                  f"{100 * rr['largest_named_miss_of_frame_interval']:.1f} % of the frame interval"
+                  + (f" (DAVIS346: {100 * result['davis346_named_miss_of_frame_interval']:.1f} %)."
+                     if result.get("davis346_named_miss_of_frame_interval") is not None else "."), ""]
     lines += ["## The calibration proof's recordings (truth known; frames 10 ms apart)", "",
               "Scan of the recording alone, and the latency beyond rdnet's simulation of it at the case's basic "
               "refit (its committed report); grid step 250 us.", "",
@@ -255,6 +371,15 @@ def main(argv: list[str] | None = None) -> int:
             result["davis346_reference"] = reference_scans(
                 rec, report, section(load_params(ROOT / "params.yaml"), "calibrate"), 20000.0, 500.0, args.min_change,
                 extra={} if cal is None else {"with_calibrated_latency": {"latency_us": cal}})
+        if REPORT.is_file():
+            result["davis346_sensitivity"] = davis346_sensitivity(
+                rec, report, section(load_params(ROOT / "params.yaml"), "calibrate"), args.min_change)
+            davis = report.get("latency_timing")
+            if davis and davis["latency_range_us"][0] is not None and cal is not None:
+                lo, hi = davis["latency_range_us"]
+                result["davis346_named_miss_of_frame_interval"] = max(lo - cal, cal - hi, 0.0) / davis["frame_interval_us"]
+    if PROOF.is_dir():
+        result["report_ranges"] = report_ranges()
     old = args.out.with_suffix(".json")
     if args.skip_proof and old.is_file():          # keep the proof rows of the last full run
         prev = json.loads(old.read_text())
