@@ -17,7 +17,7 @@ calibration's statistics, so it is an independent reading of the same physics.
   calibrate` names there (`results/calibration/davis346/report.json`).
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/latency_consistency_scan.py
-    # -> benchmarks/results/latency_consistency_scan.{json,md,png} (about 3 min)
+    # -> benchmarks/results/latency_consistency_scan.{json,md,png} (about 15 min on 2 cores; --skip-proof: DAVIS346 only, about 1 min)
 """
 from __future__ import annotations
 
