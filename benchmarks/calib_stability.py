@@ -68,7 +68,20 @@ def summarise_run(seed: int, report: dict, wall_s: float) -> dict:
             "frame_interpolation": report.get("frame_interpolation", {}).get("chosen"),
             "heldout_before": d["heldout_before"], "heldout_after": d["heldout_after"],
             "fit_before": d["fit_before"], "fit_after": d["fit_after"],
-            "wall_s": wall_s, "effects": effects}
+            "wall_s": wall_s, "effects": effects, "latency_timing": _timing_row(report)}
+
+
+def _timing_row(report: dict) -> dict | None:
+    """The report's ``latency_timing`` (the frames' own timing), with the named latency's
+    verdict against its range (the caveat's "inside" / "outside"), when the report has one."""
+    lt = report.get("latency_timing")
+    if not lt:
+        return None
+    caveats = [c for e in report["effects"] if e["name"] == "latency" and e["missing"] for c in e.get("caveats") or []
+               if c.startswith("latency_us")]
+    verdict = None if not caveats else ("inside" if "is inside that range" in caveats[0] else "outside")
+    return {"recorded_lag_us": lt["recorded_lag_us"], "ideal_lag_us": lt["ideal_lag_us"],
+            "latency_range_us": lt["latency_range_us"], "named_latency_verdict": verdict}
 
 
 def modal_set(runs: list[dict]) -> tuple[list[str], int]:
@@ -103,6 +116,14 @@ def _fmt_params(p: dict) -> str:
     return ", ".join(f"{k}={v:.4g}" for k, v in p.items())
 
 
+def _fmt_timing(t: dict | None) -> str:
+    if not t or None in t["latency_range_us"]:
+        return "-"
+    lo, hi = t["latency_range_us"]
+    return f"{lo / 1000:.2f} to {hi / 1000:.2f}" + (f" (named: {t['named_latency_verdict']})"
+                                                   if t["named_latency_verdict"] else "")
+
+
 def _fmt(v, spec: str = ".3g") -> str:
     return "-" if v is None else format(v, spec)
 
@@ -119,8 +140,8 @@ def markdown(result: dict) -> str:
         f"(goal: at least 8 of 10; {'met' if result['goal_met'] else 'NOT met'}).",
         "",
         "| seed | named | fitted parameters | confidence (held-out gain / seed std) | own statistic: held-out term before -> after, z "
-        "| thresholds x | interpolation | held-out before -> after | wall s |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| thresholds x | interpolation | held-out before -> after | latency range from the frames' timing (ms) | wall s |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in runs:
         named = [e for e in r["effects"] if e["named"]]
@@ -133,11 +154,15 @@ def markdown(result: dict) -> str:
             "; ".join(f"{e['statistic']} {_fmt(e['signature_before'])} -> {_fmt(e['signature_after'])}, "
                       f"z {_fmt(e['signature_z'], '.1f')}" for e in named) or "-",
             f"{r['threshold_scale']:.3f}", str(r["frame_interpolation"]),
-            f"{r['heldout_before']:.2f} -> {r['heldout_after']:.2f}", f"{r['wall_s']:.0f}"]) + " |")
+            f"{r['heldout_before']:.2f} -> {r['heldout_after']:.2f}", _fmt_timing(r.get("latency_timing")),
+            f"{r['wall_s']:.0f}"]) + " |")
     lines += ["", "Own statistic: its held-out term of the discrepancy (rdnet.calib.stats; latency's, `lag_smoothed`, is "
               "|lag of the highest Pearson correlation of the event rates smoothed over 5 bins| / 1 ms, capped at 5, "
               "with weight 0 in the discrepancy), before = the fit before the effect is added, z = its drop in seed "
-              "standard deviations (the signature gate names an effect only with z > 0).",
+              "standard deviations (the signature gate names an effect only with z > 0). Latency range from the "
+              "frames' timing: the report's `latency_timing` (the recorded events' lag behind the frames minus an ideal "
+              "sensor's under each interpolation tried) and whether the named latency lies in it, give or take 5 % "
+              "of the frame interval (docs/calibration.md, \"The latency against the frames' own timing\").",
               "", "Per effect over the seeds (the runner-up candidates included):", "",
               "| effect | seeds naming it | median confidence | max confidence | parameter range when named "
               "| median own-statistic z (when fitted) |", "|---|---|---|---|---|---|"]
