@@ -262,6 +262,12 @@ def figure(davis: dict, calibrated_us: float | None, ref: dict | None, path: Pat
     plt.close(fig)
 
 
+def _table(head: list[str], rows: list[list[str]]) -> list[str]:
+    """Markdown table lines: the first column left-aligned, the others right-aligned."""
+    return (["| " + " | ".join(head) + " |", "|---|" + "---:|" * (len(head) - 1)]
+            + ["| " + " | ".join(r) + " |" for r in rows])
+
+
 def markdown(result: dict) -> str:
     d = result["davis346"]
     lines = ["# A latency read off frames and events alone (no simulator, no interpolation)", "",
@@ -294,25 +300,22 @@ def markdown(result: dict) -> str:
                     lines.append(f"| {label} | {r['latency_us'] / 1000:.2f} | {r['ci95_us'][0] / 1000:.2f}-"
                                  f"{r['ci95_us'][1] / 1000:.2f} |")
             lines += ["", f"Latency beyond the simulation: **{ref['latency_beyond_simulation_us'] / 1000:.2f} ms**.", ""]
-        lines += [
-                  "![scan](latency_consistency_scan.png)", ""]
+        lines += ["![scan](latency_consistency_scan.png)", ""]
     sens = result.get("davis346_sensitivity")
     if sens:
         lines += ["### DAVIS346: what the interpolation and the thresholds do", "",
                   "The ideal sensor's lag behind the frames (basic-refit simulation, seed 0, every 2nd pixel) and "
-                  "the latency beyond it, per interpolation and threshold scale:", "",
-                  "| interpolation | thresholds x | ideal lag (ms) | latency beyond it (ms) |", "|---|---:|---:|---:|"]
-        for r in sens["ideal_lag"]:
-            lines.append(f"| {r['interpolation']} | {r['threshold_scale']:g} | {r['ideal_lag_us'] / 1000:.2f} | "
-                         f"{r['latency_beyond_simulation_us'] / 1000:.2f} |")
+                  "the latency beyond it, per interpolation and threshold scale:", ""]
+        lines += _table(["interpolation", "thresholds x", "ideal lag (ms)", "latency beyond it (ms)"],
+                        [[r["interpolation"], f"{r['threshold_scale']:g}", f"{r['ideal_lag_us'] / 1000:.2f}",
+                          f"{r['latency_beyond_simulation_us'] / 1000:.2f}"] for r in sens["ideal_lag"]])
         lines += ["", "The rate cross-correlation `rdnet calibrate`'s latency guess reads (`xcorr_lag_us`, "
                   "2 ms bins, basic refit, seed 0), as simulated and recorded, and with the events' times spread "
-                  "uniformly inside their frame intervals:", "",
-                  "| interpolation | as recorded (ms) | simulated times uniform | recorded times uniform | both |",
-                  "|---|---:|---:|---:|---:|"]
-        for r in sens["rate_xcorr_lag_us"]:
-            lines.append(f"| {r['interpolation']} | {r['as_recorded'] / 1000:.1f} | {r['simulated_times_uniform'] / 1000:.1f} "
-                         f"| {r['recorded_times_uniform'] / 1000:.1f} | {r['both_uniform'] / 1000:.1f} |")
+                  "uniformly inside their frame intervals:", ""]
+        keys = ("as_recorded", "simulated_times_uniform", "recorded_times_uniform", "both_uniform")
+        lines += _table(["interpolation", "as recorded (ms)", "simulated times uniform", "recorded times uniform",
+                         "both"], [[r["interpolation"]] + [f"{r[k] / 1000:.1f}" for k in keys]
+                                   for r in sens["rate_xcorr_lag_us"]])
         lines.append("")
     rr = result.get("report_ranges")
     if rr:
