@@ -192,8 +192,8 @@ def _shift_sums(events: Events, ctx: FrameSeries, shifts: np.ndarray, flat: np.n
 def _corr_of_sums(s: np.ndarray, n: np.ndarray) -> np.ndarray:
     """Pearson correlation from summed (..., 5) x, x^2, xy, y, y^2 and counts ``n``."""
     sx, sxx, sxy, sy, syy = np.moveaxis(s, -1, 0)
-    vx, vy = sxx - sx * sx / n, syy - sy * sy / n
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"):     # no pixel-interval (n = 0): NaN
+        vx, vy = sxx - sx * sx / n, syy - sy * sy / n
         return np.where((vx > 0) & (vy > 0), (sxy - sx * sy / n) / np.sqrt(vx * vy), np.nan)
 
 

@@ -67,3 +67,11 @@ def test_a_bad_grid_is_refused():
     ev, ctx = _recording(0.0)
     with pytest.raises(ValueError, match="step_us"):
         latency_scan(ev, ctx, max_shift_us=100.0, step_us=500.0, min_change=0.1, rng=np.random.default_rng(0))
+
+
+def test_frames_that_never_change_give_no_estimate_and_no_error():
+    ev, ctx = _recording(0.0)
+    still = SimpleNamespace(**{**vars(ctx), "log_frames": np.zeros_like(ctx.log_frames)})
+    r = latency_scan(ev, still, max_shift_us=2000.0, step_us=500.0, min_change=0.1, rng=np.random.default_rng(0))
+    assert np.isnan(r["latency_us"]) and r["pixel_intervals"] == 0 and r["intervals"] == 0
+    assert all(np.isnan(v) for v in r["ci95_us"]) and not r["at_edge"]
