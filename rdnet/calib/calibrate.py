@@ -518,7 +518,8 @@ def _latency_caveat(fitted_us: float, timing: dict) -> str | None:
             f"them by {ideal} (even an ideal pixel fires only once its change reaches a threshold, and the frame "
             "interpolation decides when between two frames the intensity changes). Under these interpolations the "
             f"frames' timing puts the latency between {lo / 1000:.3g} and {hi / 1000:.3g} ms; the fitted value, read "
-            f"off the event rate over time, is {where} that range give or take {tol / 1000:.2g} ms (5 % of the "
+            f"off the event rate over time, is {where} that range give or take {tol / 1000:.2g} ms "
+            f"({100 * TIMING_TOLERANCE:g} % of the "
             f"{frames / 1000:.3g} ms between frames, or the recorded lag's interval). The interpolation cannot pin "
             "the latency more closely; to measure it on its own: a recording with much faster frames, or a still "
             "sensor watching a light of known timing (a flashing LED): the delay of the events after each flash.")
