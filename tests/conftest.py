@@ -20,6 +20,13 @@ PROPHESEE_EVT3_RAW = SHARED_REAL / "prophesee_evk4_night" / "night.raw"
 DVXPLORER_AEDAT4 = SHARED_REAL / "dvxplorer_person" / "dvxplorer.aedat4"
 
 
+def pytest_collection_modifyitems(config, items):
+    """Tests marked ``first`` run before all others (a stable sort: the rest keep their
+    order). ``make test`` runs the suite in pytest-xdist workers (``--dist worksteal``):
+    the longest test then starts at once and the other workers share the rest."""
+    items.sort(key=lambda item: item.get_closest_marker("first") is None)
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(1234)

@@ -18,7 +18,8 @@ import yaml
 ROOT = Path(__file__).resolve().parents[2]
 DVC = Path(sys.executable).with_name("dvc")
 
-pytestmark = pytest.mark.skipif(not DVC.exists(), reason="dvc not installed beside this python")
+pytestmark = [pytest.mark.first,     # about half of the suite's time: started first (tests/conftest.py)
+              pytest.mark.skipif(not DVC.exists(), reason="dvc not installed beside this python")]
 
 
 def _tiny_params(p: dict) -> dict:
