@@ -75,3 +75,34 @@ def test_frames_that_never_change_give_no_estimate_and_no_error():
     r = latency_scan(ev, still, max_shift_us=2000.0, step_us=500.0, min_change=0.1, rng=np.random.default_rng(0))
     assert np.isnan(r["latency_us"]) and r["pixel_intervals"] == 0 and r["intervals"] == 0
     assert all(np.isnan(v) for v in r["ci95_us"]) and not r["at_edge"]
+
+
+@pytest.mark.parametrize("step_us, max_shift_us", [(500.0, 6000.0), (333.3, 25_000.0), (DT / 7, 3 * DT)])
+def test_the_sweep_equals_counting_every_shift_anew(step_us, max_shift_us):
+    """_shift_sums counts the first shift and then moves only the events that cross a frame
+    boundary; for every shift its sums equal a fresh count of the shifted events (grids
+    finer and coarser than the frames, up to three intervals wide, events on boundaries)."""
+    from rdnet.calib.consistency import _shift_sums, inside_window, log_changes
+    ev, ctx = _recording(2000.0, seed=3)
+    a = ev.array.copy()
+    a["t"][::5] = ctx.frame_t[(np.arange(a.size)[::5] % K) + 1]     # every 5th event on a frame time
+    ev = Events(np.sort(a, order="t"), W, H)
+    dL = log_changes(ctx)
+    mask = (np.abs(dL) >= 0.1) & inside_window(ctx.frame_t, ctx.t0, ctx.t1)[:, None]
+    flat = np.flatnonzero(mask)
+    kid, y = flat // ctx.n_pixels, dL.ravel()[flat]
+    n = int(max_shift_us // step_us)
+    shifts = step_us * np.arange(-n, n + 1, dtype=np.float64)
+    got = _shift_sums(ev, ctx, shifts, flat, kid, y, K)
+    t = ev.array["t"].astype(np.float64)
+    pix = ev.array["y"].astype(np.int64) * W + ev.array["x"]
+    sign = np.where(ev.array["p"], 1.0, -1.0)
+    for i, s in enumerate(shifts):
+        k = np.searchsorted(ctx.frame_t, t - s, side="left") - 1
+        ok = (k >= 0) & (k < K)
+        x = np.zeros((K, ctx.n_pixels))
+        np.add.at(x, (k[ok], pix[ok]), sign[ok])
+        x = x.ravel()[flat]
+        want = [np.bincount(kid, weights=w, minlength=K) for w in (x, x * x, x * y, y, y * y)]
+        for j in range(5):                              # bit for bit
+            assert np.array_equal(got[i, :, j], want[j]), (i, j)
