@@ -19,9 +19,9 @@ def main(args, params):
     cfg = section(params, "calibrate")
     interp = InterpolateConfig(max_upsample=cfg.max_upsample)
     # every block from a fresh default_rng(seed): rdnet reports in args.out, circuit in args.out/circuit
-    todo = generator_blocks(args.out, generator=args.generator, quick=args.quick, cfg=cfg, interpolate=interp,
-                            circuit_oversample=args.circuit_oversample, truth_warmup_us=args.truth_warmup_us,
-                            truth_preroll_us=args.truth_preroll_us)
+    todo = generator_blocks(args.out, generator=args.generator, quick=args.quick, names=args.cases, cfg=cfg,
+                            interpolate=interp, circuit_oversample=args.circuit_oversample,
+                            truth_warmup_us=args.truth_warmup_us, truth_preroll_us=args.truth_preroll_us)
     rd = next((b for b in todo if b.key == "rdnet"), None)
     if rd is not None and args.oversample > 1:
         # the truth from frames rendered denser: the calibration's own interpolation is imperfect
@@ -63,6 +63,9 @@ def _parser():
                    help="also run the rdnet proof with the truth from frames this many times denser (1: skip)")
     p.add_argument("--workers", type=int, default=2,
                    help="cases run at once, one process each (results do not depend on it)")
+    p.add_argument("--cases", nargs="+", default=None,
+                   help="only these cases (their names in the reports; default: all), each with the draws "
+                        "it gets in the whole proof (benchmarks/proof_variant.py)")
     p.add_argument("--out", type=Path, default=Path("results/calibration/proof"))
     p.add_argument("--metrics", type=Path, default=Path("metrics/calibration_proof.json"))
     return p
