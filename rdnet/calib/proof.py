@@ -47,7 +47,7 @@ from rdnet.calib.engine import simulate_random_start, warms_up
 from rdnet.calib.fit import default_simulate
 from rdnet.calib.scene import SceneSpec, draw_texture, render
 from rdnet.calib.settings import CalibrateConfig
-from rdnet.errors import ValidationError
+from rdnet.errors import ConfigError, ValidationError
 from rdnet.events.recording import Frames, Recording
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
@@ -525,7 +525,12 @@ def generator_blocks(out_dir: str | Path | None, *, generator: str = "both", qui
     :func:`generator_dir`. ``kw``: further :func:`run_proof` arguments."""
     blocks = []
     only = None if names is None else frozenset(names)
-    for gen, cases in cases_for(generator, quick).items():
+    todo = cases_for(generator, quick)
+    unknown = sorted(only - {c.name for cases in todo.values() for c in cases}) if only is not None else []
+    if unknown:
+        raise ConfigError("cases", f"no such case {', '.join(unknown)} (generator {generator}"
+                          f"{', quick subset' if quick else ''}: the names of the proof's reports)")
+    for gen, cases in todo.items():
         if any(only is None or c.name in only for c in cases):
             blocks.append(Block(gen, cases, None if out_dir is None else generator_dir(out_dir, gen), dict(kw),
                                 only=only))

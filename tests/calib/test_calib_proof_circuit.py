@@ -195,3 +195,16 @@ def test_truth_with_preroll_and_warm_up_records_from_zero(generator):
     assert int(rec.events.t.min()) >= 0 and len(rec.events) == truth["count"]
     assert abs(truth["count"] - truth["base_count"]) <= 0.02 * truth["base_count"]
     assert rec.events.array.tobytes() != cold.events.array.tobytes()
+
+
+def test_unknown_case_names_are_refused(tmp_path):
+    """--cases of the stage and of python -m rdnet.calib.proof: a name that is no case of
+    the chosen generators is an error naming it, not an empty run."""
+    import rdnet.calib.proof as proof
+    from rdnet.errors import ConfigError
+    with pytest.raises(ConfigError, match="no such case latency_typo"):
+        proof.generator_blocks(tmp_path, names=["latency_with_jitter_s2A", "latency_typo"])
+    with pytest.raises(ConfigError, match="circuit_null_thresholds"):        # not in the rdnet generator
+        proof.generator_blocks(tmp_path, generator="rdnet", names=["circuit_null_thresholds"])
+    blocks = proof.generator_blocks(tmp_path, names=["circuit_null_thresholds"])
+    assert [b.key for b in blocks] == ["circuit"] and [c.name for c in blocks[0].to_run] == ["circuit_null_thresholds"]
