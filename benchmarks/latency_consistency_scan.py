@@ -212,7 +212,7 @@ def figure(davis: dict, calibrated_us: float | None, ref: dict | None, path: Pat
     plt.close(fig)
 
 
-def _table(head: list[str], rows: list[list[str]]) -> list[str]:
+def md_table_lines(head: list[str], rows: list[list[str]]) -> list[str]:
     """Markdown table lines: the first column left-aligned, the others right-aligned."""
     return (["| " + " | ".join(head) + " |", "|---|" + "---:|" * (len(head) - 1)]
             + ["| " + " | ".join(r) + " |" for r in rows])
@@ -256,14 +256,14 @@ def markdown(result: dict) -> str:
         lines += ["### DAVIS346: what the interpolation and the thresholds do", "",
                   "The ideal sensor's lag behind the frames (basic-refit simulation, seed 0, every 2nd pixel) and "
                   "the latency beyond it, per interpolation and threshold scale:", ""]
-        lines += _table(["interpolation", "thresholds x", "ideal lag (ms)", "latency beyond it (ms)"],
+        lines += md_table_lines(["interpolation", "thresholds x", "ideal lag (ms)", "latency beyond it (ms)"],
                         [[r["interpolation"], f"{r['threshold_scale']:g}", f"{r['ideal_lag_us'] / 1000:.2f}",
                           f"{r['latency_beyond_simulation_us'] / 1000:.2f}"] for r in sens["ideal_lag"]])
         lines += ["", "The rate cross-correlation `rdnet calibrate`'s latency guess reads (`xcorr_lag_us`, "
                   "2 ms bins, basic refit, seed 0), as simulated and recorded, and with the events' times spread "
                   "uniformly inside their frame intervals:", ""]
         keys = ("as_recorded", "simulated_times_uniform", "recorded_times_uniform", "both_uniform")
-        lines += _table(["interpolation", "as recorded (ms)", "simulated times uniform", "recorded times uniform",
+        lines += md_table_lines(["interpolation", "as recorded (ms)", "simulated times uniform", "recorded times uniform",
                          "both"], [[r["interpolation"]] + [f"{r[k] / 1000:.1f}" for k in keys]
                                    for r in sens["rate_xcorr_lag_us"]])
         lines.append("")
@@ -274,7 +274,7 @@ def markdown(result: dict) -> str:
                   "interpolation each case's calibration chose (recorded lag minus its ideal lag), its error against "
                   "the truth, and how often the range over the interpolations tried, widened by the recorded lag's "
                   "95 % half-width, holds the truth.", ""]
-        lines += _table(["block", "cases", "n", "beyond the simulation (us)", "error (mean / largest, us)",
+        lines += md_table_lines(["block", "cases", "n", "beyond the simulation (us)", "error (mean / largest, us)",
                          "truth inside the range"],
                         [[x["block"], x["kind"], str(x["cases"]), ", ".join(map(str, x["beyond_chosen_us"])),
                           f"{x['mean_error_us']:.0f} / {x['max_abs_error_us']:.0f}",

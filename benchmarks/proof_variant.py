@@ -25,9 +25,11 @@ from pathlib import Path
 
 import yaml
 
+from rdnet.eval.report import write_text_atomic
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from latency_consistency_scan import _table  # noqa: E402   (markdown table lines)
+from latency_consistency_scan import md_table_lines  # noqa: E402
 
 
 def _blocks(metrics: dict) -> dict:
@@ -86,10 +88,12 @@ def markdown(tag: str, overrides: dict, rows: list[dict], wall_s: float) -> str:
                (r["named"] != r["committed"]["named"] or r["rank"] != r["committed"]["rank"])]
     right = sum(r["named_right"] for r in rows)
     right0 = sum(bool(r["committed"] and r["committed"]["named_right"]) for r in rows)
-    head = (f"# Proof variant `{tag}`: calibrate {', '.join(f'{k}={v}' for k, v in overrides.items())}\n\n"
+    settings = ", ".join(f"{k}={v}" for k, v in overrides.items()) or "as in params.yaml (a code variant)"
+    head = (f"# Proof variant `{tag}`: calibrate {settings}\n\n"
             f"{len(rows)} cases ({wall_s:.0f} s on this host); named right (or nothing in a null): {right} with the "
             f"variant, {right0} committed; {len(changed)} cases name or rank differently.\n\n")
-    table = "\n".join(_table(["block", "case", "named", "rank", "held-out after", "committed: named", "rank", "held-out after"],
+    head_row = ["block", "case", "named", "rank", "held-out after", "committed: named", "rank", "held-out after"]
+    table = "\n".join(md_table_lines(head_row,
                      [[r["block"], r["case"], ", ".join(r["named"]) or "none", str(r["rank"] or "-"), f"{r['heldout_after']:.3f}",
                        ", ".join(r["committed"]["named"]) or "none" if r["committed"] else "-",
                        str(r["committed"]["rank"] or "-") if r["committed"] else "-",
@@ -118,9 +122,8 @@ def main() -> None:
     out = {"tag": args.tag, "calibrate": overrides, "cases": args.cases, "wall_s": round(wall, 1), "rows": rows,
            "summary": {"variant": variant.get("summary"), **{k: v["summary"] for k, v in variant.items()
                                                              if isinstance(v, dict) and "summary" in v}}}
-    args.results.mkdir(parents=True, exist_ok=True)
-    (args.results / f"proof_variant_{args.tag}.json").write_text(json.dumps(out, indent=1) + "\n")
-    (args.results / f"proof_variant_{args.tag}.md").write_text(markdown(args.tag, overrides, rows, wall) + "\n")
+    write_text_atomic(args.results / f"proof_variant_{args.tag}.json", json.dumps(out, indent=1) + "\n")
+    write_text_atomic(args.results / f"proof_variant_{args.tag}.md", markdown(args.tag, overrides, rows, wall) + "\n")
     print(markdown(args.tag, overrides, rows, wall))
 
 
