@@ -73,13 +73,15 @@ def summarise_run(seed: int, report: dict, wall_s: float) -> dict:
 
 def _timing_row(report: dict) -> dict | None:
     """The report's ``latency_timing`` (the frames' own timing), with the named latency's
-    verdict against its range (the caveat's "inside" / "outside"), when the report has one."""
+    verdict against its range (:func:`rdnet.calib.calibrate.latency_verdict`, as in the
+    caveat: "inside" / "outside"), when the report has one."""
+    from rdnet.calib.calibrate import latency_verdict
     lt = report.get("latency_timing")
     if not lt:
         return None
-    caveats = [c for e in report["effects"] if e["name"] == "latency" and e["missing"] for c in e.get("caveats") or []
-               if c.startswith("latency_us")]
-    verdict = None if not caveats else ("inside" if "is inside that range" in caveats[0] else "outside")
+    named = [e["parameters"]["latency_us"] for e in report["effects"] if e["name"] == "latency" and e["missing"]]
+    verdict = latency_verdict(float(named[0]), lt) if named else None
+    verdict = verdict[0] if verdict else None
     return {"recorded_lag_us": lt["recorded_lag_us"], "ideal_lag_us": lt["ideal_lag_us"],
             "latency_range_us": lt["latency_range_us"], "named_latency_verdict": verdict}
 

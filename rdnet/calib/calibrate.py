@@ -501,17 +501,29 @@ def latency_timing(ctx: CalibContext, sensor: SensorConfig, ideal: dict, rng: np
 TIMING_TOLERANCE = 0.05
 
 
-def _latency_caveat(fitted_us: float, timing: dict) -> str | None:
+def latency_verdict(fitted_us: float, timing: dict) -> tuple[str, float] | None:
+    """Whether a fitted latency lies ``"inside"`` or ``"outside"`` the range of a report's
+    ``latency_timing`` (:func:`latency_timing`), give or take the tolerance (us, returned
+    with it): the recorded lag's 95 % half-width or :data:`TIMING_TOLERANCE` of the frame
+    interval, the larger. None when the timing has no range."""
     lo, hi = timing.get("latency_range_us") or (None, None)
-    rec = timing.get("recorded_lag_us")
-    frames = timing.get("frame_interval_us")
+    rec, frames = timing.get("recorded_lag_us"), timing.get("frame_interval_us")
     if lo is None or hi is None or rec is None or frames is None:
         return None
-    ideal = ", ".join(f"{m} {v / 1000:.2g} ms" for m, v in timing["ideal_lag_us"].items() if v is not None)
     ci = timing["recorded_ci95_us"]
     half = max(rec - ci[0], ci[1] - rec) if None not in ci else 0.0
     tol = max(half, TIMING_TOLERANCE * frames)
-    where = "inside" if lo - tol <= fitted_us <= hi + tol else "outside"
+    return ("inside" if lo - tol <= fitted_us <= hi + tol else "outside"), tol
+
+
+def _latency_caveat(fitted_us: float, timing: dict) -> str | None:
+    verdict = latency_verdict(fitted_us, timing)
+    if verdict is None:
+        return None
+    where, tol = verdict
+    lo, hi = timing["latency_range_us"]
+    rec, frames, ci = timing["recorded_lag_us"], timing["frame_interval_us"], timing["recorded_ci95_us"]
+    ideal = ", ".join(f"{m} {v / 1000:.2g} ms" for m, v in timing["ideal_lag_us"].items() if v is not None)
     return (f"latency_us fitted {fitted_us / 1000:.3g} ms. Read off the frames and events alone (no simulator), "
             f"the recorded events trail the frames by {rec / 1000:.3g} ms (95 % {ci[0] / 1000:.3g}-"
             f"{ci[1] / 1000:.3g}); an ideal sensor's events, simulated from the frames at the basic refit, trail "
