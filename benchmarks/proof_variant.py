@@ -25,6 +25,7 @@ from pathlib import Path
 
 import yaml
 
+from rdnet.calib.proof import generator_dir, metric_blocks
 from rdnet.eval.report import write_text_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -33,9 +34,8 @@ from latency_consistency_scan import md_table_lines  # noqa: E402
 
 
 def _blocks(metrics: dict) -> dict:
-    """{block: {case: entry}} of a proof metrics file (the rdnet block at its top level)."""
-    return {"rdnet": metrics["cases"], **{k: v["cases"] for k, v in metrics.items()
-                                          if isinstance(v, dict) and "cases" in v and k != "reliability"}}
+    """{block: {case: entry}} of a proof metrics file (:func:`rdnet.calib.proof.metric_blocks`)."""
+    return {k: v["cases"] for k, v in metric_blocks(metrics).items()}
 
 
 def run_variant(overrides: dict, cases: list[str] | None, workers: int) -> tuple[dict, float]:
@@ -56,7 +56,7 @@ def run_variant(overrides: dict, cases: list[str] | None, workers: int) -> tuple
         wall = time.perf_counter() - t0
         metrics = json.loads((tmp / "metrics.json").read_text())
         for block, cases in _blocks(metrics).items():
-            folder = tmp / "proof" if block == "rdnet" else tmp / "proof" / block
+            folder = generator_dir(tmp / "proof", block)
             for name, entry in cases.items():
                 entry["candidates"] = _candidates(json.loads((folder / name / "report.json").read_text()))
         return metrics, wall
@@ -120,8 +120,7 @@ def main() -> None:
     committed = json.loads((ROOT / "metrics" / "calibration_proof.json").read_text())
     rows = compare(variant, committed)
     out = {"tag": args.tag, "calibrate": overrides, "cases": args.cases, "wall_s": round(wall, 1), "rows": rows,
-           "summary": {"variant": variant.get("summary"), **{k: v["summary"] for k, v in variant.items()
-                                                             if isinstance(v, dict) and "summary" in v}}}
+           "summary": {k: v["summary"] for k, v in metric_blocks(variant).items()}}
     write_text_atomic(args.results / f"proof_variant_{args.tag}.json", json.dumps(out, indent=1) + "\n")
     write_text_atomic(args.results / f"proof_variant_{args.tag}.md", markdown(args.tag, overrides, rows, wall) + "\n")
     print(markdown(args.tag, overrides, rows, wall))

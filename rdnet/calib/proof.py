@@ -608,12 +608,19 @@ GOAL_COLUMNS = (("named_right_first", "named first"), ("ranked_first", "ranked f
                 ("heldout_excess_over_noise_floor_halved", "excess over noise floor halved"))
 
 
+def metric_blocks(metrics: dict) -> dict[str, dict]:
+    """{block: its ``summary`` and ``cases``} of the ``calibration_proof`` stage's metrics
+    (``metrics/calibration_proof.json``: the rdnet block at the top level, the other
+    blocks under their keys, beside ``reliability``); a block's reports are in
+    :func:`generator_dir` of the stage's folder and the block's name."""
+    return {"rdnet": {k: metrics[k] for k in ("summary", "cases") if k in metrics},
+            **{k: v for k, v in metrics.items() if isinstance(v, dict) and "summary" in v}}
+
+
 def goals_table(metrics: dict) -> str:
     """The proof against the goals of issue 12, one row per block and a total row, from
-    the ``calibration_proof`` stage's metrics (``metrics/calibration_proof.json``: the
-    rdnet block's ``summary`` at the top level, the other blocks' under their keys)."""
-    blocks = [("rdnet", metrics["summary"])] + [(k, v["summary"]) for k, v in metrics.items()
-                                                 if isinstance(v, dict) and "summary" in v]
+    the ``calibration_proof`` stage's metrics (:func:`metric_blocks`)."""
+    blocks = [(k, v["summary"]) for k, v in metric_blocks(metrics).items()]
     head = ["block", "concealed"] + [c for _, c in GOAL_COLUMNS] + ["nulls naming nothing"]
     lines = ["| " + " | ".join(head) + " |", "|---|" + "---:|" * (len(head) - 1)]
     keys = [k for k, _ in GOAL_COLUMNS] + ["concealed_cases", "null_cases", "null_named_nothing"]
