@@ -48,7 +48,15 @@ def scan(rec, log_eps: float, min_change: float, seed: int = 0) -> dict:
                         step_us=500.0, min_change=min_change, rng=np.random.default_rng(seed))
 
 
-def reference_scans(rec, report: dict, cfg, extra: dict | None = None) -> dict:
+def _context(rec, report: dict, cfg, method: str):
+    """The calibration's context of ``rec`` (its pixel sample) with ``method``'s frame interpolation."""
+    from rdnet.calib.context import build_context
+    from rdnet.sim.interpolate import InterpolateConfig
+    return build_context(rec, cfg, float(report["base_config"]["sensor"]["log_eps"]), source="scan",
+                         interpolate=InterpolateConfig(method=method, max_upsample=cfg.max_upsample))
+
+
+def reference_scans(rec, report: dict, cfg, extra: dict | None = None, ctx=None) -> dict:
     """The scan of the recording and of rdnet's simulation of it at what ``rdnet calibrate``
     fitted before naming any effect (its report: base config, basic refit, chosen frame
     interpolation), on the calibration's pixel sample. The scan of an ideal stream is not 0:
@@ -56,16 +64,15 @@ def reference_scans(rec, report: dict, cfg, extra: dict | None = None) -> dict:
     change (by about half its inter-event time); the simulation carries that lag too, so
     ``scan(recording) - scan(simulation)`` is the latency beyond it. ``extra``: more
     simulated configs on top of the basic refit (name -> values). The scans are the report's
-    own (:func:`rdnet.calib.calibrate.lag_behind_frames`: its grid and scored set)."""
+    own (:func:`rdnet.calib.calibrate.lag_behind_frames`: its grid and scored set). ``ctx``:
+    the context of the report's chosen interpolation when already built (:func:`_context`)."""
     from rdnet.calib.calibrate import lag_behind_frames
-    from rdnet.calib.context import build_context
     from rdnet.calib.fit import Objective
-    from rdnet.sim.interpolate import InterpolateConfig
     from rdnet.sim.settings import DegradeConfig, SensorConfig
     sensor = SensorConfig(**report["base_config"]["sensor"])
     degrade = DegradeConfig(**report["base_config"]["degrade"])
-    icfg = InterpolateConfig(method=report["frame_interpolation"]["chosen"], max_upsample=cfg.max_upsample)
-    ctx = build_context(rec, cfg, sensor.log_eps, interpolate=icfg, source="scan")
+    method = report["frame_interpolation"]["chosen"]
+    ctx = _context(rec, report, cfg, method) if ctx is None else ctx
     obj = Objective(ctx, sensor, degrade, [0])
     basic = dict(report["basic_refit"])
 
@@ -73,7 +80,7 @@ def reference_scans(rec, report: dict, cfg, extra: dict | None = None) -> dict:
         r = lag_behind_frames(ev, ctx, sensor, resamples=200)
         return {k: r[k] for k in ("latency_us", "ci95_us", "at_edge")}
     out = {"recorded": one(ctx.real), "simulated_basic_refit": one(obj.simulate(basic, 0)),
-           "interpolation": icfg.method, "pixel_stride": ctx.stride}
+           "interpolation": method, "pixel_stride": ctx.stride}
     for name, values in (extra or {}).items():
         out["simulated_" + name] = one(obj.simulate({**basic, **values}, 0))
     out["latency_beyond_simulation_us"] = out["recorded"]["latency_us"] - out["simulated_basic_refit"]["latency_us"]
@@ -89,17 +96,17 @@ def davis346_sensitivity(rec, report: dict, cfg) -> dict:
     import copy
 
     from rdnet.calib import stats as st
-    from rdnet.calib.context import build_context
     from rdnet.calib.fit import Objective
-    from rdnet.sim.interpolate import InterpolateConfig
     from rdnet.sim.settings import DegradeConfig, SensorConfig
     lags = []
+    contexts = {}                     # one context (flows, warps) per interpolation, for every use
     for method in ("flow", "linear", "cubic", "selected"):
+        contexts[method] = _context(rec, report, cfg, method)
         for scale in (1.0, 1.5, round(float(report["basic_refit"].get("threshold_scale", 1.0)), 2)):
             r = copy.deepcopy(report)
             r["frame_interpolation"]["chosen"] = method
             r["basic_refit"] = {**r["basic_refit"], "threshold_scale": scale}
-            ref = reference_scans(rec, r, cfg)
+            ref = reference_scans(rec, r, cfg, ctx=contexts[method])
             lags.append({"interpolation": method, "threshold_scale": scale,
                          "ideal_lag_us": ref["simulated_basic_refit"]["latency_us"],
                          "recorded_lag_us": ref["recorded"]["latency_us"],
@@ -116,8 +123,7 @@ def davis346_sensitivity(rec, report: dict, cfg) -> dict:
         return out
     xcorr = []
     for method in ("flow", "linear", "cubic"):
-        ctx = build_context(rec, cfg, sensor.log_eps, source="scan",
-                            interpolate=InterpolateConfig(method=method, max_upsample=cfg.max_upsample))
+        ctx = contexts[method]
         sim = Objective(ctx, sensor, degrade, [0]).simulate(dict(report["basic_refit"]), 0)
         edges = np.arange(ctx.t0, ctx.t1 + 1, cfg.time_bin_us)
         mask = np.ones(len(edges) - 1, bool)
