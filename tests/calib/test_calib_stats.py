@@ -171,6 +171,20 @@ def test_distances_zero_for_identical_and_grow_with_mismatch(ctx, monkeypatch):
     assert st.distances(a, c, ctx)["lag_smoothed"] > 0.0
 
 
+def test_fraction_gap_counts_only_what_sampling_does_not_explain():
+    # p = 0.5 from 98 + 98 events: standard error sqrt(0.25 * (1/100 + 1/100)) = 0.0707
+    assert st.fraction_gap(0.55, 0.45, 98, 98) == pytest.approx(0.1 - np.sqrt(0.005))
+    assert st.fraction_gap(0.52, 0.48, 98, 98) == 0.0            # inside the error: no evidence
+    assert st.fraction_gap(0.48, 0.52, 98, 98) == 0.0            # symmetric
+    # many events: the plain difference
+    assert st.fraction_gap(0.55, 0.45, 1e9, 1e9) == pytest.approx(0.1, abs=1e-4)
+    # per bin (on_vs_intensity): element-wise, a bin without events counts nothing
+    g = st.fraction_gap(np.array([0.9, 0.5]), np.array([0.1, 0.5]), np.array([1e9, 0.0]), np.array([1e9, 0.0]))
+    assert g == pytest.approx([0.8, 0.0], abs=1e-4)
+    # a smaller sample needs a larger difference to count the same
+    assert st.fraction_gap(0.6, 0.5, 200, 200) < st.fraction_gap(0.6, 0.5, 2000, 2000)
+
+
 def _pearson_lag_reference(sim, real, mask, L):
     """Straightforward loop: per lag k, the Pearson coefficient over the pairs (i, i + k)
     both inside ``mask`` of the rates centred on their masked means (no smoothing)."""
