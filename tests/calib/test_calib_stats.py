@@ -178,7 +178,7 @@ def test_fraction_gap_counts_only_what_sampling_does_not_explain():
     assert st.fraction_gap(0.48, 0.52, 98, 98) == 0.0            # symmetric
     # many events: the plain difference
     assert st.fraction_gap(0.55, 0.45, 1e9, 1e9) == pytest.approx(0.1, abs=1e-4)
-    # per bin (on_vs_intensity): element-wise, a bin without events counts nothing
+    # element-wise on arrays; a fraction measured on no events counts nothing
     g = st.fraction_gap(np.array([0.9, 0.5]), np.array([0.1, 0.5]), np.array([1e9, 0.0]), np.array([1e9, 0.0]))
     assert g == pytest.approx([0.8, 0.0], abs=1e-4)
     # a smaller sample needs a larger difference to count the same
