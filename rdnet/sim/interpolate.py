@@ -143,6 +143,14 @@ class InterpolateConfig:
     ``occlusion``: use the forward-backward check to weight the two warps.
     ``verify``: measure the bound on the produced frames and refine the count if violated
     (otherwise the first estimate is used).
+    ``warp``: how 'flow' and 'selected' resample the two frames they warp, 'bilinear'
+    (``cv2.INTER_LINEAR``) or 'bicubic' (``cv2.INTER_CUBIC``); the flow fields and
+    occlusion masks are resampled bilinearly either way. A bilinear warp by a fractional
+    shift is also a low-pass filter whose strength follows the shift, so within every frame
+    interval edges soften and sharpen again and the simulated events come late in the
+    interval (bicubic: nearly even, as from frames rendered 64x denser;
+    ``benchmarks/interpolation_phase.py``). The study's data use 'bilinear' (params.yaml),
+    the calibration 'bicubic' (``calibrate.warp``).
     ``select_sigma_px``: 'selected' only: the Gaussian sigma (pixels) over which the two
     methods' prediction errors are pooled before choosing (:func:`flow_weight`).
     ``fill_log``: final guarantee. Where the frames at ``max_upsample`` still exceed the
@@ -162,11 +170,14 @@ class InterpolateConfig:
     verify: bool = True
     fill_log: bool = False
     select_sigma_px: float = 4.0
+    warp: Literal["bilinear", "bicubic"] = "bilinear"
 
     def __post_init__(self):
         if self.method not in METHODS:
             raise ConfigError("interpolate.method", f"must be one of {', '.join(METHODS)}, got {self.method!r}")
         positive("interpolate.select_sigma_px", self.select_sigma_px, allow_zero=False)
+        if self.warp not in WARPS:
+            raise ConfigError("interpolate.warp", f"must be one of {', '.join(WARPS)}, got {self.warp!r}")
         if self.flow not in ("dis", "farneback"):
             raise ConfigError("interpolate.flow", f"must be dis or farneback, got {self.flow!r}")
         if self.dis_preset not in ("ultrafast", "fast", "medium"):
@@ -463,9 +474,15 @@ def _grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
     return gx, gy
 
 
-def _remap(img: np.ndarray, gx: np.ndarray, gy: np.ndarray, flow: np.ndarray) -> np.ndarray:
-    """Backward warp: out(x) = img(x + flow(x)), bilinear, borders replicated."""
-    return cv2.remap(img, gx + flow[..., 0], gy + flow[..., 1], cv2.INTER_LINEAR,
+#: ``interpolate.warp`` -> the OpenCV resampling of the warped frames
+WARPS = {"bilinear": cv2.INTER_LINEAR, "bicubic": cv2.INTER_CUBIC}
+
+
+def _remap(img: np.ndarray, gx: np.ndarray, gy: np.ndarray, flow: np.ndarray,
+           interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
+    """Backward warp: out(x) = img(x + flow(x)), borders replicated; bilinear unless
+    ``interpolation`` (an OpenCV flag, :data:`WARPS`) says otherwise."""
+    return cv2.remap(img, gx + flow[..., 0], gy + flow[..., 1], interpolation,
                      borderMode=cv2.BORDER_REPLICATE)
 
 
@@ -633,8 +650,9 @@ class PairInterpolator:
         f01, f10, o0, o1, gx, gy = self._prepare()
         ft0 = -(1 - t) * t * f01 + t * t * f10          # Super SloMo Eq. 4
         ft1 = (1 - t) * (1 - t) * f01 - t * (1 - t) * f10
-        g0 = _remap(f0, gx, gy, ft0)
-        g1 = _remap(f1, gx, gy, ft1)
+        warp = WARPS[self.cfg.warp]
+        g0 = _remap(f0, gx, gy, ft0, warp)
+        g1 = _remap(f1, gx, gy, ft1, warp)
         w0 = np.full(gx.shape, 1 - t, np.float32)
         w1 = np.full(gx.shape, t, np.float32)
         if o0 is not None:
@@ -713,7 +731,7 @@ class PairFlowCache:
         """``pi._warped(t)`` of pair ``index`` on ``pi``'s current grid, computed by the first
         interpolator that asks (the others wait for it); read-only. ``token``: the asking
         interpolator's id (one that asks twice is not counted twice)."""
-        key = self._key(index, pi) + (pi._grid, float(t))
+        key = self._key(index, pi) + (pi.cfg.warp, pi._grid, float(t))
         with self._lock:
             entry = self._frames.get(key)
             owner = entry is None
