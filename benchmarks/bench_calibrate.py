@@ -32,13 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
-from rdnet.calib.calibrate import calibrate, finding
+from rdnet.calib.calibrate import calibrate, calibration_interpolation, finding
 from rdnet.calib.proof import CASES, make_recording
 from rdnet.calib.report import write_json, write_report
 from rdnet.calib.scene import SceneSpec
 from rdnet.config import load_params, section, to_dict
 from rdnet.events.io import load as load_recording
-from rdnet.sim.interpolate import InterpolateConfig
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -86,7 +85,7 @@ def main() -> None:
     rows = []
 
     case = next(c for c in CASES if c.effect == "hot_pixels")
-    interp = InterpolateConfig(max_upsample=cfg.max_upsample)
+    interp = calibration_interpolation(cfg)
     rec, _ = make_recording(case, SceneSpec(), sensor, np.random.default_rng(0), 1, interp)
     cal, wall, cpu, load = _timed(lambda: calibrate(rec, sensor, DegradeConfig(**case.base), cfg, interpolate=interp,
                                                     source="synthetic:" + case.name, progress=False))

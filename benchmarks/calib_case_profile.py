@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from rdnet.calib import proof as P
-from rdnet.calib.calibrate import _objectives, interpolation_configs
+from rdnet.calib.calibrate import _objectives, calibration_interpolation, interpolation_configs
 from rdnet.calib.context import build_context
 from rdnet.calib.effects import EFFECTS
 from rdnet.calib.fit import Compensated, fit_basic
@@ -31,7 +31,6 @@ from rdnet.calib.report import write_json
 from rdnet.calib.scene import SceneSpec
 from rdnet.config import load_params, section
 from rdnet.eval.report import write_text_atomic
-from rdnet.sim.interpolate import InterpolateConfig
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,7 +63,7 @@ def main() -> None:
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     cfg = section(load_params(args.params), "calibrate")
-    interp = InterpolateConfig(max_upsample=cfg.max_upsample)
+    interp = calibration_interpolation(cfg)
     case, rec, truth = case_recording(args.case, args.generator, args.oversample, cfg, interp, args.seed)
     effect = EFFECTS[case.effect]
     key = effect.params[0].key

@@ -43,12 +43,12 @@ from pathlib import Path
 import numpy as np
 
 from rdnet.calib import stats as st
+from rdnet.calib.calibrate import calibration_interpolation
 from rdnet.calib.context import build_context
 from rdnet.calib.fit import Objective
 from rdnet.calib.proof import case_draws, cases_for, make_recording
 from rdnet.calib.scene import SceneSpec
 from rdnet.config import load_params, section
-from rdnet.sim.interpolate import InterpolateConfig
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -123,7 +123,7 @@ def case_lags(truth: str, cfg, seeds: list[int]) -> dict:
     case = next(c for c in cases if c.name == "latency_with_jitter")
     kw = (dict(truth_warmup_us=0, truth_preroll_us=0) if truth == "random start"
           else dict(truth_warmup_us=5_000_000, truth_preroll_us=500_000))
-    ip = InterpolateConfig(max_upsample=cfg.max_upsample)
+    ip = calibration_interpolation(cfg)
     rec, _ = make_recording(case, SceneSpec(), SensorConfig(), None, oversample=4, interpolate=ip,
                             draws=draws[case.name], **kw)
     ctx = build_context(rec, cfg, SensorConfig().log_eps, interpolate=dataclasses.replace(ip, method="linear"))

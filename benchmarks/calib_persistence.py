@@ -38,12 +38,11 @@ from pathlib import Path
 import numpy as np
 
 from rdnet.calib import stats as st
-from rdnet.calib.calibrate import _objectives, interpolation_configs
+from rdnet.calib.calibrate import _objectives, calibration_interpolation, interpolation_configs
 from rdnet.calib.context import build_context
 from rdnet.calib.fit import fit_basic
 from rdnet.config import load_params, section
 from rdnet.events.io import load as load_recording
-from rdnet.sim.interpolate import InterpolateConfig
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -148,7 +147,7 @@ def calibrate_settings(params: Path):
     for name in ("rdnet.calib", "rdnet.sim"):
         logging.getLogger(name).setLevel(logging.WARNING)
     cfg = section(load_params(params), "calibrate")
-    return cfg, InterpolateConfig(max_upsample=cfg.max_upsample)
+    return cfg, calibration_interpolation(cfg)
 
 
 def main() -> None:

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from rdnet.calib import stats as st
-from rdnet.calib.calibrate import _objectives
+from rdnet.calib.calibrate import _objectives, calibration_interpolation
 from rdnet.calib.context import build_context
 from rdnet.calib.effects import EFFECTS
 from rdnet.calib.fit import fit_basic, screen
@@ -33,7 +33,6 @@ from rdnet.calib.proof import case_draws, generator_blocks, make_recording
 from rdnet.calib.scene import SceneSpec
 from rdnet.config import load_params, section
 from rdnet.eval.report import write_text_atomic
-from rdnet.sim.interpolate import InterpolateConfig
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,7 +46,7 @@ def _stats(a: dict) -> dict:
 
 def rebuild(case_name: str, generator: str, cfg, seed: int):
     """The case and its recording and truth, as the ``calibration_proof`` stage makes them."""
-    interp = InterpolateConfig(max_upsample=cfg.max_upsample)
+    interp = calibration_interpolation(cfg)
     block = generator_blocks(None, generator=generator, names=[case_name], cfg=cfg, interpolate=interp)[0]
     rng, spec = np.random.default_rng(seed), SceneSpec()
     draws = {c.name: case_draws(c, spec, rng) for c in block.cases}      # in block order, as the stage
@@ -61,7 +60,7 @@ def run(args) -> dict:
     case, rec, truth = rebuild(args.case, args.generator, cfg, args.seed)
     sensor, degrade = SensorConfig(), DegradeConfig(**case.base)
     ctx = build_context(rec, cfg, sensor.log_eps, source=case.name,
-                        interpolate=InterpolateConfig(method=args.interpolation, max_upsample=cfg.max_upsample))
+                        interpolate=calibration_interpolation(cfg, args.interpolation))
     seeds = list(range(cfg.seeds))                      # rdnet calibrate --seed 0
     _, fine, search = _objectives(ctx, sensor, degrade, seeds, None)
     basic, beta = fit_basic(search, fine)

@@ -13,6 +13,9 @@ events in each fifth of the interval and the mean phase (0.5 = even).
   the ideal sensor at the thresholds the calibration fits to it (x2.3, seed 0) on the frames
   upsampled as ``rdnet calibrate`` does (``calibrate`` and ``interpolate`` sections of
   params.yaml, every 2nd pixel).
+Methods 'flow' and 'selected' run with both ``interpolate.warp`` resamplings of their warped
+frames (bilinear, the study's; bicubic, the calibration's since session 38).
+
 * The calibration proof's scene (:mod:`rdnet.calib.scene`, 64 x 64, both motions, 100 fps):
   the ideal sensor on the scene rendered at 6400 fps (the reference) and on its 100 fps frames
   upsampled by each method.
@@ -35,6 +38,8 @@ from calib_stability import stage_sets  # noqa: E402
 from flow_edge_drag import ideal_events  # noqa: E402
 REAL = ROOT / "data" / "real" / "davis346_road" / "davis346.aedat4"
 METHODS = ("flow", "linear", "cubic", "selected")
+#: the methods that warp frames, each run with both ``interpolate.warp`` resamplings
+WARPED = ("flow", "selected")
 BINS = 5
 
 
@@ -65,11 +70,21 @@ def davis346() -> list[dict]:
     ft = rec.frames.t_us.astype(np.int64)
     rows = [row("recorded", phases(rec.events.t, ft))]
     base = section(p, "interpolate")
-    for icfg in interpolation_configs(dataclasses.replace(cfg, interpolation=METHODS), base):
+    for m, warp in variants():
+        icfg, = interpolation_configs(dataclasses.replace(cfg, interpolation=(m,), warp=warp or cfg.warp), base)
         ctx = build_context(rec, cfg, sensor.log_eps, interpolate=icfg, source=str(REAL))
         ev = Objective(ctx, sensor, degrade, [0]).simulate({"threshold_scale": 2.3}, 0)
-        rows.append(row(f"simulated, {icfg.method}", phases(ev.t, ft)))
+        rows.append(row(f"simulated, {label(m, warp)}", phases(ev.t, ft)))
     return rows
+
+
+def variants() -> list[tuple[str, str | None]]:
+    """(method, warp) of every stream: the warping methods with both warps."""
+    return [(m, w) for m in METHODS for w in (("bilinear", "bicubic") if m in WARPED else (None,))]
+
+
+def label(method: str, warp: str | None) -> str:
+    return method if warp is None else f"{method}, {warp} warp"
 
 
 def proof_scene(motion: str, texture_seed: int = 1) -> list[dict]:
@@ -81,9 +96,10 @@ def proof_scene(motion: str, texture_seed: int = 1) -> list[dict]:
     ft = frames.t_us.astype(np.int64)
     fine, _ = render(spec, None, fps_hz=6400.0, texture=tex)
     rows = [row("6400 fps reference", phases(ideal_events(fine.images, fine.t_us).t, ft))]
-    for m in METHODS:
-        ims, t = upsample_all(frames.images, frames.t_us, InterpolateConfig(method=m, max_upsample=16), warn=False)
-        rows.append(row(f"100 fps, {m}", phases(ideal_events(ims, t).t, ft)))
+    for m, warp in variants():
+        icfg = InterpolateConfig(method=m, max_upsample=16, warp=warp or "bilinear")
+        ims, t = upsample_all(frames.images, frames.t_us, icfg, warn=False)
+        rows.append(row(f"100 fps, {label(m, warp)}", phases(ideal_events(ims, t).t, ft)))
     return rows
 
 

@@ -51,9 +51,9 @@ def scan(rec, log_eps: float, min_change: float, seed: int = 0) -> dict:
 def _context(rec, report: dict, cfg, method: str):
     """The calibration's context of ``rec`` (its pixel sample) with ``method``'s frame interpolation."""
     from rdnet.calib.context import build_context
-    from rdnet.sim.interpolate import InterpolateConfig
+    from rdnet.calib.calibrate import calibration_interpolation
     return build_context(rec, cfg, float(report["base_config"]["sensor"]["log_eps"]), source="scan",
-                         interpolate=InterpolateConfig(method=method, max_upsample=cfg.max_upsample))
+                         interpolate=calibration_interpolation(cfg, method))
 
 
 def reference_scans(rec, report: dict, cfg, extra: dict | None = None, ctx=None) -> dict:

@@ -12,12 +12,12 @@ import _common
 
 def main(args, params):
     from rdnet.calib import reliability as rel
+    from rdnet.calib.calibrate import calibration_interpolation
     from rdnet.calib.proof import Block, format_table, generator_blocks, run_blocks
     from rdnet.config import section
     from rdnet.eval.report import write_text_atomic
-    from rdnet.sim.interpolate import InterpolateConfig
     cfg = section(params, "calibrate")
-    interp = InterpolateConfig(max_upsample=cfg.max_upsample)
+    interp = calibration_interpolation(cfg)       # the scenes upsampled as the calibration will
     # every block from a fresh default_rng(seed): rdnet reports in args.out, circuit in args.out/circuit
     todo = generator_blocks(args.out, generator=args.generator, quick=args.quick, names=args.cases, cfg=cfg,
                             interpolate=interp, circuit_oversample=args.circuit_oversample,

@@ -334,12 +334,22 @@ def contexts_as_built(rec: Recording, cfg: CalibrateConfig, log_eps: float, inte
 
 def interpolation_configs(cfg: CalibrateConfig, interpolate) -> list:
     """The ``InterpolateConfig`` of every method of ``cfg.interpolation`` (the rest of
-    ``interpolate``'s settings kept); ``[interpolate]`` when the list is empty."""
+    ``interpolate``'s settings kept, its warp replaced by ``cfg.warp`` unless that is None);
+    ``[interpolate]`` (with that warp) when the list is empty."""
     if not cfg.interpolation:
-        return [interpolate]
+        return [interpolate if interpolate is None and cfg.warp is None else calibration_interpolation(cfg, base=interpolate)]
+    return [calibration_interpolation(cfg, m, base=interpolate) for m in cfg.interpolation]
+
+
+def calibration_interpolation(cfg: CalibrateConfig, method: str | None = None, base=None):
+    """``base`` (None: the ``InterpolateConfig`` defaults with ``cfg.max_upsample``, as the
+    proof's scenes are upsampled) as the calibration runs it: ``method`` when given, and
+    ``cfg.warp`` unless that is None."""
     from rdnet.sim.interpolate import InterpolateConfig
-    base = InterpolateConfig() if interpolate is None else interpolate
-    return [dataclasses.replace(base, method=m) for m in cfg.interpolation]
+    ip = InterpolateConfig(max_upsample=cfg.max_upsample) if base is None else base
+    if method is not None:
+        ip = dataclasses.replace(ip, method=method)
+    return ip if cfg.warp is None else dataclasses.replace(ip, warp=cfg.warp)
 
 
 def _objectives(ctx: CalibContext, sensor: SensorConfig, degrade: DegradeConfig, seeds: list[int],

@@ -41,7 +41,7 @@ from typing import Sequence
 
 import numpy as np
 
-from rdnet.calib.calibrate import calibrate, numba_threads
+from rdnet.calib.calibrate import calibrate, calibration_interpolation, numba_threads
 from rdnet.calib.effects import EFFECTS, apply
 from rdnet.calib.engine import simulate_random_start, warms_up
 from rdnet.calib.fit import default_simulate
@@ -564,7 +564,6 @@ def main(argv: list[str] | None = None) -> int:
     one report per case (circuit cases under OUT_DIR/circuit), print the tables."""
     import argparse
 
-    from rdnet.sim.interpolate import InterpolateConfig
     ap = argparse.ArgumentParser(prog="python -m rdnet.calib.proof", description=main.__doc__)
     ap.add_argument("out", type=Path)
     add_proof_arguments(ap)
@@ -578,7 +577,8 @@ def main(argv: list[str] | None = None) -> int:
     cfg = CalibrateConfig() if args.warmup_us is None else CalibrateConfig(warmup_us=args.warmup_us)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     runs = run_generators(args.out, args.seed, generator=args.generator, quick=args.quick, names=args.cases,
-                          oversample=args.oversample, interpolate=InterpolateConfig(max_upsample=args.max_upsample), cfg=cfg,
+                          oversample=args.oversample,
+                          interpolate=dataclasses.replace(calibration_interpolation(cfg), max_upsample=args.max_upsample), cfg=cfg,
                           circuit_oversample=args.circuit_oversample, truth_warmup_us=args.truth_warmup_us,
                           truth_preroll_us=args.truth_preroll_us)
     for gen, m in runs.items():

@@ -3,7 +3,7 @@ recording (segments, seeds, statistic resolution, significance rule)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Tuple
+from typing import Optional, Tuple
 
 from rdnet.config import MAX_THREADS, ONE_HOUR_US, check_bounds, positive
 from rdnet.errors import ConfigError
@@ -95,6 +95,10 @@ class CalibrateConfig:
     and the one with the lowest reachable fit-segment discrepancy (the basic refit's, lowered
     by the share its best screened effect removes) is kept for everything after (reported
     as ``frame_interpolation``; empty = the ``interpolate`` config as given).
+    ``warp``: ``interpolate.warp`` of every interpolation the calibration runs ('bicubic'
+    or 'bilinear'; None = the ``interpolate`` section's): bicubic, because a bilinear
+    warp delays the simulated events within each frame interval (docs/calibration.md,
+    "Bicubic warps").
     ``random_reference``: each simulation seed starts every pixel's reference at a uniform
     random point between its OFF and ON thresholds (the unknown state at recording start)
     instead of at the first frame, so even a deterministic pixel model has an honest seed
@@ -131,6 +135,7 @@ class CalibrateConfig:
     threads: int = 1
     candidates: Tuple[str, ...] = ()
     interpolation: Tuple[str, ...] = ("flow", "linear", "selected")
+    warp: Optional[str] = "bicubic"
     random_reference: bool = True
     warmup_us: int = 3_000_000
 
@@ -154,6 +159,9 @@ class CalibrateConfig:
         for m in self.interpolation:
             if m not in METHODS:
                 raise ConfigError("calibrate.interpolation", f"unknown method {m!r}; known: {', '.join(METHODS)}")
+        from rdnet.sim.interpolate import WARPS
+        if self.warp is not None and self.warp not in WARPS:
+            raise ConfigError("calibrate.warp", f"must be one of {', '.join(WARPS)} or null, got {self.warp!r}")
         if len(set(self.interpolation)) != len(self.interpolation):
             raise ConfigError("calibrate.interpolation", f"duplicate method in {list(self.interpolation)}")
         from rdnet.calib.effects import EFFECTS
