@@ -49,6 +49,26 @@ def consistency_table(runs: dict[str, Path]) -> list[str]:
     return out
 
 
+def circuit_table(runs: dict[str, Path]) -> list[str]:
+    """Stage-1 event metrics and deblurring PSNR on the test sequences rendered by the
+    independent circuit generator (``metrics/restoration_circuit.json``): its test events do
+    not go through rdnet's frame interpolation, so both runs are scored on the same events."""
+    data = {n: _load(r, "metrics/restoration_circuit.json") for n, r in runs.items()}
+    out = ["| method | " + " | ".join(f"{n}: F1 | {n}: count ratio | {n}: all-voxel L1" for n in runs) + " |",
+           "|---|" + "---:|" * (3 * len(runs))]
+    for m in ("degraded", "restore_image", "restore_events", "rdnet"):
+        cells = []
+        for n in runs:
+            e = data[n]["events"][m]
+            cells += [f"{e['f1']:.3f}", f"{e['count_ratio']:.2f}", f"{e['voxel_l1_all']:.4f}"]
+        out.append(f"| {m} | " + " | ".join(cells) + " |")
+    out += ["", "| deblurring row | " + " | ".join(f"{n}: PSNR (dB)" for n in runs) + " |",
+            "|---|" + "---:|" * len(runs)]
+    for row in ("degraded_train", "rdnet", "rdnet_dual", "restored"):
+        out.append(f"| `{row}` | " + " | ".join(f"{data[n]['rows'][row]['psnr']:.2f} ± {data[n]['rows'][row]['psnr_std']:.2f}" for n in runs) + " |")
+    return out
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--variant", type=Path, default=VARIANT, help="outputs of the study run with bicubic warps")
@@ -61,7 +81,10 @@ def main(argv=None) -> None:
              "bicubic`, everything else identical.", "",
              *sections(runs),
              "Event-frame consistency on the recordings with frames:", "",
-             *consistency_table(runs), ""]
+             *consistency_table(runs), "",
+             "## The independent circuit generator's rendering of the test split "
+             "(`metrics/restoration_circuit.json`)", "",
+             *circuit_table(runs), ""]
     write_lines(args.out, lines)
 
 
