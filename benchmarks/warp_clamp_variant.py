@@ -4,7 +4,9 @@ block that bilinear reads, or the 4 x 4 block that bicubic reads), the anti-ring
 image scalers. It runs ``benchmarks/warp_edge_ringing.py`` (a sharp moving edge, where
 bicubic rings) and the proof-scene part of ``benchmarks/interpolation_phase.py`` (textures,
 where bicubic times events as the 6400 fps reference does) with ``rdnet.sim.interpolate._remap``
-replaced by the clamped version for bicubic warps.
+replaced by the clamped version for bicubic warps, and with the library's own 2 x 2 clamp
+(``interpolate.warp: bicubic_clamped``, which reads the four corners instead of an eroded
+image: the same block, so the same numbers).
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/warp_clamp_variant.py
     # -> benchmarks/results/warp_clamp_variant.md (about 1 min)
@@ -31,7 +33,7 @@ def clamped_remap(block: int):
     kernel = np.ones((block, block), np.uint8)
     anchor = (block // 2 - 1, block // 2 - 1)
 
-    def remap(img, gx, gy, flow, interpolation=cv2.INTER_LINEAR):
+    def remap(img, gx, gy, flow, interpolation=cv2.INTER_LINEAR, clamp=False):
         out = plain(img, gx, gy, flow, interpolation)
         if interpolation != cv2.INTER_CUBIC:
             return out
@@ -54,10 +56,12 @@ def main() -> int:
              "first row of each scene).", "",
              "| clamp | edge excess at 90:1 / 45:1 / 18:1 | drift: flow | drift: selected | back and forth: flow | "
              "back and forth: selected |", "|---|---|---|---|---|---|"]
-    plain = ip._remap
+    plain, bicubic = ip._remap, ip.WARPS["bicubic"]
     refs = {}
-    for block in (None, 2, 4):
-        ip._remap = plain if block is None else clamped_remap(block)
+    for block in (None, 2, 4, "library"):
+        ip._remap = plain if block in (None, "library") else clamped_remap(block)
+        if block == "library":       # the library's own clamp, in place of plain bicubic
+            ip.WARPS["bicubic"] = ip.WARPS["bicubic_clamped"]
         try:
             edge = warp_edge_ringing.run()[:3]
             cells = [" / ".join(f"{100 * (r['bicubic_events'] / r['reference_events'] - 1):+.1f} %" for r in edge)]
@@ -68,8 +72,10 @@ def main() -> int:
                     r = rows[f"100 fps, {m}, bicubic warp"]
                     cells.append(f"{r['events']:,}, {r['share_per_fifth'][-1]:.3f}, {r['mean_phase']:.3f}")
         finally:
-            ip._remap = plain
-        lines.append(f"| {'none (the adopted bicubic)' if block is None else f'{block} x {block}'} | " + " | ".join(cells) + " |")
+            ip._remap, ip.WARPS["bicubic"] = plain, bicubic
+        name = {None: "none (the adopted bicubic)", "library": "2 x 2, `interpolate.warp: bicubic_clamped`"}.get(
+            block, f"{block} x {block}")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
     lines.append("| reference (6400 fps) | 0 | " + " | ".join(
         f"{refs[m]['events']:,}, {refs[m]['share_per_fifth'][-1]:.3f}, {refs[m]['mean_phase']:.3f}"
         for m in ("drift", "drift", "backforth", "backforth")) + " |")

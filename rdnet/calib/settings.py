@@ -95,8 +95,8 @@ class CalibrateConfig:
     and the one with the lowest reachable fit-segment discrepancy (the basic refit's, lowered
     by the share its best screened effect removes) is kept for everything after (reported
     as ``frame_interpolation``; empty = the ``interpolate`` config as given).
-    ``warp``: ``interpolate.warp`` of every interpolation the calibration runs ('bicubic'
-    or 'bilinear'; None = the ``interpolate`` section's): bicubic, because a bilinear
+    ``warp``: ``interpolate.warp`` of every interpolation the calibration runs ('bicubic',
+    'bicubic_clamped' or 'bilinear'; None = the ``interpolate`` section's): bicubic, because a bilinear
     warp delays the simulated events within each frame interval (docs/calibration.md,
     "Bicubic warps").
     ``random_reference``: each simulation seed starts every pixel's reference at a uniform

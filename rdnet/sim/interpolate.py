@@ -120,6 +120,12 @@ UPPER_BOUNDS = {
 LOWER_BOUNDS = {"max_log_step": SENSOR_LOWER_BOUNDS["threshold_on"]}
 
 
+#: ``interpolate.warp`` -> (the OpenCV resampling of the warped frames, whether the result is
+#: clipped to the range of the 2 x 2 source pixels around each sample)
+WARPS = {"bilinear": (cv2.INTER_LINEAR, False), "bicubic": (cv2.INTER_CUBIC, False),
+         "bicubic_clamped": (cv2.INTER_CUBIC, True)}
+
+
 @dataclass(frozen=True)
 class InterpolateConfig:
     """``interpolate`` section.
@@ -144,13 +150,17 @@ class InterpolateConfig:
     ``verify``: measure the bound on the produced frames and refine the count if violated
     (otherwise the first estimate is used).
     ``warp``: how 'flow' and 'selected' resample the two frames they warp, 'bilinear'
-    (``cv2.INTER_LINEAR``) or 'bicubic' (``cv2.INTER_CUBIC``); the flow fields and
-    occlusion masks are resampled bilinearly either way. A bilinear warp by a fractional
+    (``cv2.INTER_LINEAR``), 'bicubic' (``cv2.INTER_CUBIC``) or 'bicubic_clamped' (bicubic
+    clipped to the range of the 2 x 2 source pixels bilinear would read: the anti-ringing
+    clamp of image scalers); the flow fields and occlusion masks are resampled bilinearly
+    every time. A bilinear warp by a fractional
     shift is also a low-pass filter whose strength follows the shift, so within every frame
     interval edges soften and sharpen again and the simulated events come late in the
     interval (bicubic: nearly even, as from frames rendered 64x denser;
-    ``benchmarks/interpolation_phase.py``). The study's data use 'bilinear' (params.yaml),
-    the calibration 'bicubic' (``calibrate.warp``).
+    ``benchmarks/interpolation_phase.py``). Bicubic overshoots at sharp edges (8.5 % more
+    events at a 90:1 edge, ``benchmarks/warp_edge_ringing.py``), which the clamp removes.
+    The study's data use 'bilinear' (params.yaml), the calibration 'bicubic'
+    (``calibrate.warp``).
     ``select_sigma_px``: 'selected' only: the Gaussian sigma (pixels) over which the two
     methods' prediction errors are pooled before choosing (:func:`flow_weight`).
     ``fill_log``: final guarantee. Where the frames at ``max_upsample`` still exceed the
@@ -170,7 +180,7 @@ class InterpolateConfig:
     verify: bool = True
     fill_log: bool = False
     select_sigma_px: float = 4.0
-    warp: Literal["bilinear", "bicubic"] = "bilinear"
+    warp: Literal["bilinear", "bicubic", "bicubic_clamped"] = "bilinear"
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -474,16 +484,24 @@ def _grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
     return gx, gy
 
 
-#: ``interpolate.warp`` -> the OpenCV resampling of the warped frames
-WARPS = {"bilinear": cv2.INTER_LINEAR, "bicubic": cv2.INTER_CUBIC}
-
-
 def _remap(img: np.ndarray, gx: np.ndarray, gy: np.ndarray, flow: np.ndarray,
-           interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
+           interpolation: int = cv2.INTER_LINEAR, clamp: bool = False) -> np.ndarray:
     """Backward warp: out(x) = img(x + flow(x)), borders replicated; bilinear unless
-    ``interpolation`` (an OpenCV flag, :data:`WARPS`) says otherwise."""
-    return cv2.remap(img, gx + flow[..., 0], gy + flow[..., 1], interpolation,
-                     borderMode=cv2.BORDER_REPLICATE)
+    ``interpolation`` (an OpenCV flag, :data:`WARPS`) says otherwise. ``clamp``: each
+    sample clipped to the min / max of the 2 x 2 source pixels around it (those a bilinear
+    warp reads, borders replicated), so an interpolation kernel with negative lobes cannot
+    overshoot an edge."""
+    mx, my = gx + flow[..., 0], gy + flow[..., 1]
+    out = cv2.remap(img, mx, my, interpolation, borderMode=cv2.BORDER_REPLICATE)
+    if not clamp:
+        return out
+    x0, y0 = np.floor(mx), np.floor(my)
+    x1, y1 = x0 + 1, y0 + 1
+    corners = [cv2.remap(img, x, y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+               for x, y in ((x0, y0), (x1, y0), (x0, y1), (x1, y1))]
+    lo = np.minimum(np.minimum(corners[0], corners[1]), np.minimum(corners[2], corners[3]))
+    hi = np.maximum(np.maximum(corners[0], corners[1]), np.maximum(corners[2], corners[3]))
+    return np.clip(out, lo, hi, out=out)
 
 
 def _occluded(f01: np.ndarray, f10: np.ndarray, gx, gy) -> np.ndarray:
@@ -650,9 +668,9 @@ class PairInterpolator:
         f01, f10, o0, o1, gx, gy = self._prepare()
         ft0 = -(1 - t) * t * f01 + t * t * f10          # Super SloMo Eq. 4
         ft1 = (1 - t) * (1 - t) * f01 - t * (1 - t) * f10
-        warp = WARPS[self.cfg.warp]
-        g0 = _remap(f0, gx, gy, ft0, warp)
-        g1 = _remap(f1, gx, gy, ft1, warp)
+        warp, clamp = WARPS[self.cfg.warp]
+        g0 = _remap(f0, gx, gy, ft0, warp, clamp)
+        g1 = _remap(f1, gx, gy, ft1, warp, clamp)
         w0 = np.full(gx.shape, 1 - t, np.float32)
         w1 = np.full(gx.shape, t, np.float32)
         if o0 is not None:
