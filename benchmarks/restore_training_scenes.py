@@ -71,6 +71,7 @@ def score_real(path: Path, name: str, params: dict, runs: dict[str, tuple[str, P
     out = {"events": sc.entry["events"], "methods": {}}
     for label, m in sc.entry["methods"].items():
         out["methods"][label] = {"events_out": m["events_out"], "kept_fraction": m["kept_fraction"],
+                                 "not_recorded_fraction": m["not_recorded_fraction"],
                                  "activity": m["regions"]["activity"], "background": m["regions"]["background"],
                                  "consistency_r2": m["consistency_r2"], "esr": m["esr"],
                                  **({"hot_pixels": m["regions"]["hot_pixels"]} if "hot_pixels" in m["regions"] else {})}
