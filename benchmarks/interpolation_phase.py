@@ -78,16 +78,16 @@ def davis346() -> list[dict]:
     return rows
 
 
-def variants() -> list[tuple[str, str | None]]:
-    """(method, warp) of every stream: the warping methods with both warps."""
-    return [(m, w) for m in METHODS for w in (("bilinear", "bicubic") if m in WARPED else (None,))]
+def variants(warps: tuple[str, ...] = ("bilinear", "bicubic")) -> list[tuple[str, str | None]]:
+    """(method, warp) of every stream: the warping methods with each of ``warps``."""
+    return [(m, w) for m in METHODS for w in (warps if m in WARPED else (None,))]
 
 
 def label(method: str, warp: str | None) -> str:
     return method if warp is None else f"{method}, {warp} warp"
 
 
-def proof_scene(motion: str, texture_seed: int = 1) -> list[dict]:
+def proof_scene(motion: str, texture_seed: int = 1, warps: tuple[str, ...] = ("bilinear", "bicubic")) -> list[dict]:
     from rdnet.calib.scene import SceneSpec, draw_texture, render
     from rdnet.sim.interpolate import InterpolateConfig, upsample_all
     spec = SceneSpec(motion=motion)
@@ -96,7 +96,7 @@ def proof_scene(motion: str, texture_seed: int = 1) -> list[dict]:
     ft = frames.t_us.astype(np.int64)
     fine, _ = render(spec, None, fps_hz=6400.0, texture=tex)
     rows = [row("6400 fps reference", phases(ideal_events(fine.images, fine.t_us).t, ft))]
-    for m, warp in variants():
+    for m, warp in variants(warps):
         icfg = InterpolateConfig(method=m, max_upsample=16, warp=warp or "bilinear")
         ims, t = upsample_all(frames.images, frames.t_us, icfg, warn=False)
         rows.append(row(f"100 fps, {label(m, warp)}", phases(ideal_events(ims, t).t, ft)))

@@ -26,7 +26,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from restore_training_scenes import RECORDINGS, score_real  # noqa: E402
+from restore_training_scenes import RECORDINGS, score_real_recordings  # noqa: E402
 
 log = logging.getLogger("restore_seeds_real")
 
@@ -39,26 +39,23 @@ def checkpoints(root: Path, seeds: list[int], has_frames: bool) -> dict[int, Pat
 
 
 def run(runs: dict[str, Path], seeds: list[int], names: list[str], work: Path) -> dict:
+    """:func:`restore_training_scenes.score_real_recordings` with every run's seeds as learned
+    restorers (``NAME/SEED``), plus each recording's ``has_frames``."""
     from rdnet.config import load_params
     from rdnet.events.io import open_events
     from rdnet.restore.real import recordings
-    params = load_params(ROOT / "params.yaml")
     found = dict(recordings([ROOT / "data" / "real", ROOT.parent / "shared" / "real"]))
-    res = {"seeds": seeds, "runs": {k: str(v) for k, v in runs.items()}, "recordings": {}}
-    for rec in names:
-        path = found.get(rec)
-        if path is None:
-            log.warning("%s not found: skipped", rec)
-            continue
-        with open_events(path) as src:
+
+    def learned(rec: str) -> dict[str, Path]:
+        with open_events(found[rec]) as src:
             fr = src.frames()
-            has_frames = fr is not None and len(fr) > 0
-        learned = {"raw": ("raw", None), "baf": ("baf", None)}
-        for name, root in runs.items():
-            for s, ck in checkpoints(root, seeds, has_frames).items():
-                learned[f"{name}/{s}"] = ("rdnet", ck)
-        res["recordings"][rec] = {"has_frames": has_frames, **score_real(path, rec, params, learned, work)}
-    return res
+        frames[rec] = fr is not None and len(fr) > 0
+        return {f"{name}/{s}": ck for name, root in runs.items()
+                for s, ck in checkpoints(root, seeds, frames[rec]).items()}
+    frames: dict[str, bool] = {}
+    scored = score_real_recordings(names, load_params(ROOT / "params.yaml"), learned, work)
+    return {"seeds": seeds, "runs": {k: str(v) for k, v in runs.items()},
+            "recordings": {rec: {"has_frames": frames[rec], **r} for rec, r in scored.items()}}
 
 
 def markdown(res: dict) -> str:

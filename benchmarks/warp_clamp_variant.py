@@ -4,9 +4,9 @@ block that bilinear reads, or the 4 x 4 block that bicubic reads), the anti-ring
 image scalers. It runs ``benchmarks/warp_edge_ringing.py`` (a sharp moving edge, where
 bicubic rings) and the proof-scene part of ``benchmarks/interpolation_phase.py`` (textures,
 where bicubic times events as the 6400 fps reference does) with ``rdnet.sim.interpolate._remap``
-replaced by the clamped version for bicubic warps, and with the library's own 2 x 2 clamp
-(``interpolate.warp: bicubic_clamped``, which reads the four corners instead of an eroded
-image: the same block, so the same numbers).
+replaced by a 4 x 4 clamped version for bicubic warps, and with the library's own 2 x 2 clamp
+(``interpolate.warp: bicubic_clamped``; this script's own 2 x 2 version gave the same numbers
+before the library had it, session 39).
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/warp_clamp_variant.py
     # -> benchmarks/results/warp_clamp_variant.md (about 1 min)
@@ -27,7 +27,8 @@ import warp_edge_ringing  # noqa: E402
 
 def clamped_remap(block: int):
     """``_remap`` whose bicubic result is clipped to the min / max of the ``block`` x ``block``
-    source pixels the sample reads (2: bilinear's, 4: bicubic's)."""
+    source pixels the sample reads (4: bicubic's; the library's ``bicubic_clamped`` is the
+    2 x 2 block bilinear reads)."""
     import rdnet.sim.interpolate as ip
     plain = ip._remap
     kernel = np.ones((block, block), np.uint8)
@@ -46,6 +47,17 @@ def clamped_remap(block: int):
     return remap
 
 
+def _cells(edge: list[dict], scenes: dict, warp: str) -> list[str]:
+    """A table row's cells for ``warp``: the edge excess at the three sharpest contrasts, then
+    flow / selected on both proof scenes (events, share in the last fifth, mean phase)."""
+    cells = [" / ".join(f"{100 * (r[f'{warp}_events'] / r['reference_events'] - 1):+.1f} %" for r in edge[:3])]
+    for motion in ("drift", "backforth"):
+        for m in ("flow", "selected"):
+            r = scenes[motion][f"100 fps, {m}, {warp} warp"]
+            cells.append(f"{r['events']:,}, {r['share_per_fifth'][-1]:.3f}, {r['mean_phase']:.3f}")
+    return cells
+
+
 def main() -> int:
     import rdnet.sim.interpolate as ip
     from rdnet.eval.report import write_text_atomic
@@ -56,26 +68,22 @@ def main() -> int:
              "first row of each scene).", "",
              "| clamp | edge excess at 90:1 / 45:1 / 18:1 | drift: flow | drift: selected | back and forth: flow | "
              "back and forth: selected |", "|---|---|---|---|---|---|"]
-    plain, bicubic = ip._remap, ip.WARPS["bicubic"]
-    refs = {}
-    for block in (None, 2, 4, "library"):
-        ip._remap = plain if block in (None, "library") else clamped_remap(block)
-        if block == "library":       # the library's own clamp, in place of plain bicubic
-            ip.WARPS["bicubic"] = ip.WARPS["bicubic_clamped"]
-        try:
-            edge = warp_edge_ringing.run()[:3]
-            cells = [" / ".join(f"{100 * (r['bicubic_events'] / r['reference_events'] - 1):+.1f} %" for r in edge)]
-            for motion in ("drift", "backforth"):
-                rows = {r["stream"]: r for r in interpolation_phase.proof_scene(motion)}
-                refs[motion] = rows["6400 fps reference"]
-                for m in ("flow", "selected"):
-                    r = rows[f"100 fps, {m}, bicubic warp"]
-                    cells.append(f"{r['events']:,}, {r['share_per_fifth'][-1]:.3f}, {r['mean_phase']:.3f}")
-        finally:
-            ip._remap, ip.WARPS["bicubic"] = plain, bicubic
-        name = {None: "none (the adopted bicubic)", "library": "2 x 2, `interpolate.warp: bicubic_clamped`"}.get(
-            block, f"{block} x {block}")
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+
+    def scenes(warps):
+        return {motion: {r["stream"]: r for r in interpolation_phase.proof_scene(motion, warps=warps)}
+                for motion in ("drift", "backforth")}
+    edge, plain_scenes = warp_edge_ringing.run(), scenes(("bicubic", "bicubic_clamped"))
+    plain = ip._remap
+    ip._remap = clamped_remap(4)
+    try:
+        edge4, scenes4 = warp_edge_ringing.run(), scenes(("bicubic",))
+    finally:
+        ip._remap = plain
+    lines += ["| none (the adopted bicubic) | " + " | ".join(_cells(edge, plain_scenes, "bicubic")) + " |",
+              "| 2 x 2, `interpolate.warp: bicubic_clamped` | "
+              + " | ".join(_cells(edge, plain_scenes, "bicubic_clamped")) + " |",
+              "| 4 x 4 | " + " | ".join(_cells(edge4, scenes4, "bicubic")) + " |"]
+    refs = {m: plain_scenes[m]["6400 fps reference"] for m in ("drift", "backforth")}
     lines.append("| reference (6400 fps) | 0 | " + " | ".join(
         f"{refs[m]['events']:,}, {refs[m]['share_per_fifth'][-1]:.3f}, {refs[m]['mean_phase']:.3f}"
         for m in ("drift", "drift", "backforth", "backforth")) + " |")
