@@ -485,23 +485,38 @@ def _grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _remap(img: np.ndarray, gx: np.ndarray, gy: np.ndarray, flow: np.ndarray,
-           interpolation: int = cv2.INTER_LINEAR, clamp: bool = False) -> np.ndarray:
+           interpolation: int = cv2.INTER_LINEAR, clamp: bool = False,
+           bounds: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Backward warp: out(x) = img(x + flow(x)), borders replicated; bilinear unless
     ``interpolation`` (an OpenCV flag, :data:`WARPS`) says otherwise. ``clamp``: each
     sample clipped to the min / max of the 2 x 2 source pixels around it (those a bilinear
     warp reads, borders replicated), so an interpolation kernel with negative lobes cannot
-    overshoot an edge."""
+    overshoot an edge; ``bounds``: :func:`_block_bounds` of ``img`` when already computed
+    (a pair's frames are warped once per inserted frame)."""
     mx, my = gx + flow[..., 0], gy + flow[..., 1]
     out = cv2.remap(img, mx, my, interpolation, borderMode=cv2.BORDER_REPLICATE)
     if not clamp:
         return out
-    x0, y0 = np.floor(mx), np.floor(my)
-    x1, y1 = x0 + 1, y0 + 1
-    corners = [cv2.remap(img, x, y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
-               for x, y in ((x0, y0), (x1, y0), (x0, y1), (x1, y1))]
-    lo = np.minimum(np.minimum(corners[0], corners[1]), np.minimum(corners[2], corners[3]))
-    hi = np.maximum(np.maximum(corners[0], corners[1]), np.maximum(corners[2], corners[3]))
+    lo, hi = _block_bounds(img) if bounds is None else bounds
+    # block (i, j) of the bounds covers source rows i - 1, i and columns j - 1, j: the
+    # 2 x 2 pixels at floor(my), floor(my) + 1 and floor(mx), floor(mx) + 1 are block
+    # (floor(my) + 1, floor(mx) + 1); beyond the border all four replicate the edge, as the
+    # outermost block does, which the replicated border of the bounds' own lookup gives
+    bx, by = np.floor(mx) + 1, np.floor(my) + 1
+    lo = cv2.remap(lo, bx, by, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+    hi = cv2.remap(hi, bx, by, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
     return np.clip(out, lo, hi, out=out)
+
+
+def _block_bounds(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(lo, hi)``, (H + 1, W + 1[, C]): the min and max of every 2 x 2 block of ``img``
+    with its border replicated one pixel out, block (i, j) covering rows i - 1, i and
+    columns j - 1, j (the clamp of :func:`_remap`)."""
+    p = cv2.copyMakeBorder(img, 1, 1, 1, 1, cv2.BORDER_REPLICATE)
+    if p.ndim < img.ndim:                   # OpenCV drops a trailing axis of length 1
+        p = p.reshape(p.shape + img.shape[2:])
+    a, b, c, d = p[:-1, :-1], p[:-1, 1:], p[1:, :-1], p[1:, 1:]
+    return np.minimum(np.minimum(a, b), np.minimum(c, d)), np.maximum(np.maximum(a, b), np.maximum(c, d))
 
 
 def _occluded(f01: np.ndarray, f10: np.ndarray, gx, gy) -> np.ndarray:
@@ -542,6 +557,7 @@ class PairInterpolator:
         self.cfg = cfg
         self.color = self.f0.ndim == 3
         self._flows = None
+        self._bounds = None                     # the clamp's per-pair block bounds (_clamp_bounds)
         w = None
         if cfg.method == "selected" and flow_weight is not None:
             w = np.asarray(flow_weight, np.float32)
@@ -662,6 +678,12 @@ class PairInterpolator:
         v = p1 + np.float32(0.5) * t * ((p2 - p0) + t * ((2 * p0 - 5 * p1 + 4 * p2 - p3) + t * (3 * (p1 - p2) + p3 - p0)))
         return np.maximum(np.exp(v) - self._eps, 0).astype(np.float32)
 
+    def _clamp_bounds(self):
+        """:func:`_block_bounds` of both frames, computed once per pair (``bicubic_clamped``)."""
+        if self._bounds is None:
+            self._bounds = (_block_bounds(self.f0), _block_bounds(self.f1))
+        return self._bounds
+
     def _warped(self, t: np.float32) -> np.ndarray:
         """The flow frame at ``t`` (module docstring)."""
         f0, f1 = self.f0, self.f1
@@ -669,8 +691,9 @@ class PairInterpolator:
         ft0 = -(1 - t) * t * f01 + t * t * f10          # Super SloMo Eq. 4
         ft1 = (1 - t) * (1 - t) * f01 - t * (1 - t) * f10
         warp, clamp = WARPS[self.cfg.warp]
-        g0 = _remap(f0, gx, gy, ft0, warp, clamp)
-        g1 = _remap(f1, gx, gy, ft1, warp, clamp)
+        b0, b1 = self._clamp_bounds() if clamp else (None, None)
+        g0 = _remap(f0, gx, gy, ft0, warp, clamp, b0)
+        g1 = _remap(f1, gx, gy, ft1, warp, clamp, b1)
         w0 = np.full(gx.shape, 1 - t, np.float32)
         w1 = np.full(gx.shape, t, np.float32)
         if o0 is not None:

@@ -72,6 +72,31 @@ def test_the_clamp_removes_the_bicubic_overshoot_at_a_sharp_edge():
     assert np.array_equal(_remap(img, gx, gy, flow, cv2.INTER_LINEAR, clamp=True), _remap(img, gx, gy, flow))
 
 
+@pytest.mark.parametrize("shape", [(9, 13), (7, 11, 3)])
+def test_the_clamp_bounds_are_each_samples_own_2x2_source_pixels(shape):
+    """The clamp's per-pair bounds (``_block_bounds``, looked up at each sample) equal the
+    min / max of the four pixels around the sample, read directly with the border
+    replicated, also for samples far outside the frame; given or computed per call alike."""
+    from rdnet.sim.interpolate import _block_bounds
+    rng = np.random.default_rng(3)
+    img = (rng.random(shape) ** 3).astype(np.float32)
+    h, w = shape[:2]
+    gx, gy = _grid(h, w)
+    flow = (rng.standard_normal((h, w, 2)) * np.array([4.0, 3.0]) * rng.choice([0.1, 1, 5], (h, w, 1))
+            ).astype(np.float32)
+    flow[0, 0] = (-40.5, -30.25)                         # far beyond the top-left corner
+    flow[-1, -1] = (40.5, 30.25)                         # and the bottom-right one
+    mx, my = gx + flow[..., 0], gy + flow[..., 1]
+    x0, y0 = np.floor(mx).astype(int), np.floor(my).astype(int)
+    corners = [img[np.clip(y0 + dy, 0, h - 1), np.clip(x0 + dx, 0, w - 1)] for dy in (0, 1) for dx in (0, 1)]
+    want = np.clip(cv2.remap(img, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE),
+                   np.min(corners, axis=0), np.max(corners, axis=0))
+    got = _remap(img, gx, gy, flow, cv2.INTER_CUBIC, clamp=True)
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(_remap(img, gx, gy, flow, cv2.INTER_CUBIC, True, _block_bounds(img)), want)
+    assert not np.array_equal(got, _remap(img, gx, gy, flow, cv2.INTER_CUBIC))   # the clamp acted
+
+
 def test_warp_settings_are_validated():
     assert InterpolateConfig().warp == "bilinear" and CalibrateConfig().warp == "bicubic"
     assert InterpolateConfig(warp="bicubic_clamped").warp == CalibrateConfig(warp="bicubic_clamped").warp
