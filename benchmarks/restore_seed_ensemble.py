@@ -95,6 +95,30 @@ class SeedEnsemble(nn.Module):
         return keep, mu_at
 
 
+class SeedVote(SeedEnsemble):
+    """The members' own decisions, voted: a voxel is kept where at least ``quorum`` members
+    keep it (each with its stored threshold; its support rule, the same for every member,
+    is the decision's), with the median of the members' decided counts (0 for a member
+    that drops it). Its heads encode that: ``mu`` the median count, the logit +-10 for
+    kept / dropped, so any decision threshold in (0, 1) applies the vote."""
+
+    def __init__(self, members, thresholds, quorum: int = 2):
+        super().__init__(members)
+        from rdnet.nn.decision import logit_threshold
+        self.cuts = [logit_threshold(float(t)) for t in thresholds]
+        self.quorum = int(quorum)
+
+    def heads(self, image, counts):
+        counts = self._dense(counts)
+        decided = []
+        for m, cut in zip(self.members, self.cuts):
+            mu, logit = m(image, counts, return_heads=True)
+            decided.append(torch.where(logit >= cut, torch.clamp(mu.float(), min=1.0).round(), 0.0))
+        decided = torch.stack(decided)
+        keep = (decided > 0).sum(0) >= self.quorum
+        return decided.median(0).values, torch.where(keep, 10.0, -10.0)
+
+
 def members(folder: Path, seeds) -> list[tuple[Path, dict, nn.Module]]:
     from rdnet.train import checkpoint as ckpt_mod
     out = []
@@ -202,6 +226,13 @@ def main() -> None:
         entry["ensemble"] = {"threshold": decision["threshold"], "decision": decision,
                              "test": test_scores(ens, decision, args.test)}
         log.info("%s ensemble: %s", name, entry["ensemble"]["test"])
+        supports = [ck["extra"]["decision"].get("support") for _, ck, _ in mem]
+        if not all(sp and sp.get("drop") for sp in supports):
+            raise SystemExit(f"{name}: the vote needs every member to drop unsupported voxels")
+        vote = SeedVote([net for _, _, net in mem], [ck["extra"]["decision"]["threshold"] for _, ck, _ in mem]).eval()
+        vote_decision = {**mem[0][1]["extra"]["decision"], "threshold": 0.5, "fitted_on": "vote of the members"}
+        entry["vote"] = {"threshold": 0.5, "test": test_scores(vote, vote_decision, args.test)}
+        log.info("%s vote: %s", name, entry["vote"]["test"])
         # real recordings: every member with its own decision, and the ensemble
         runs = {}
         for (path, _, _), s in zip(mem, args.seeds):
@@ -209,6 +240,8 @@ def main() -> None:
         base = runs[f"seed{args.seeds[0]}"]
         prepare_for_inference(ens, "cpu")
         runs["ensemble"] = dataclasses.replace(base, net=ens, decision=decision, source="seed ensemble")
+        prepare_for_inference(vote, "cpu")
+        runs["vote"] = dataclasses.replace(base, net=vote, decision=vote_decision, source="seed vote")
         entry["real"] = {}
         with tempfile.TemporaryDirectory() as tmp:
             for rec in recs:
@@ -226,12 +259,13 @@ def table(res: dict) -> str:
     lines = [f"# Seed ensemble of the study's restorers (seeds {res['seeds']})", "",
              "Members: each training seed with the decision stored in its checkpoint. Ensemble: the "
              "members' occupancy probabilities and count heads averaged per voxel, its decision fitted "
-             f"as training fits each member's ({res['val_rows']} held-out training rows).", ""]
+             f"as training fits each member's ({res['val_rows']} held-out training rows). Vote: the "
+             "members' own decisions, a voxel kept where 2 of 3 keep it, with the median of their counts.", ""]
     for name, e in res["restorers"].items():
         lines += [f"## `{name}`", "", "Simulated test split:", "",
                   "| run | threshold | " + " | ".join(METRICS) + " |", "|---|---:|" + "---:|" * len(METRICS)]
         rows = {"raw degraded events": {"threshold": float("nan"), "test": res["raw_test"]},
-                **e["members"], "mean of the members": None, "ensemble": e["ensemble"]}
+                **e["members"], "mean of the members": None, "ensemble": e["ensemble"], "vote (2 of 3)": e["vote"]}
         for label, r in rows.items():
             if r is None:
                 vals = [np.mean([m["test"][k] for m in e["members"].values()]) for k in METRICS]
