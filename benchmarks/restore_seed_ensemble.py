@@ -146,7 +146,10 @@ def raw_scores(pairs: Path) -> dict:
     return pair_metrics(degraded, np.stack([r["counts_undegraded"].numpy() for r in rows]), degraded)
 
 
-def test_scores(net, decision: dict, pairs: Path) -> dict:
+def test_scores(net, decision: dict, pairs: Path, match_ratio: float | None = None) -> dict:
+    """The test split's event metrics of ``net`` under ``decision``; with ``match_ratio``,
+    under the threshold at which its count ratio on the test split comes closest to that
+    value instead (fitted on the test split itself: a control, not a usable decision)."""
     from rdnet.nn.decision import decide_counts, decision_gain, support_applies
     from rdnet.train.data import PairsDataset
     from rdnet.train.loop import predict_counts
@@ -157,9 +160,18 @@ def test_scores(net, decision: dict, pairs: Path) -> dict:
         degraded = np.stack([data[i]["counts_degraded"].numpy() for i in range(len(data))])
     finally:
         data.close()
-    restored = decide_counts(out, prob, float(decision["threshold"]),
-                             support if support_applies(decision) else None, decision_gain(decision))
-    return pair_metrics(restored, target, degraded)
+    sup = support if support_applies(decision) else None
+
+    def at(threshold: float) -> dict:
+        return {**pair_metrics(decide_counts(out, prob, threshold, sup, decision_gain(decision)), target, degraded),
+                "threshold": threshold}
+    if match_ratio is None:
+        return at(float(decision["threshold"]))
+    lo, hi = 0.0, 1.0                     # the count ratio falls as the threshold rises
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if at(mid)["count_ratio"] > match_ratio else (lo, mid)
+    return min((at(lo), at(hi)), key=lambda m: abs(m["count_ratio"] - match_ratio))
 
 
 def real_scores(rec: str, params: dict, runs: dict, work: Path) -> dict:
@@ -233,6 +245,10 @@ def main() -> None:
         vote_decision = {**mem[0][1]["extra"]["decision"], "threshold": 0.5, "fitted_on": "vote of the members"}
         entry["vote"] = {"threshold": 0.5, "test": test_scores(vote, vote_decision, args.test)}
         log.info("%s vote: %s", name, entry["vote"]["test"])
+        # control: each member alone at the vote's count ratio (its threshold fitted on the test split)
+        entry["members_at_vote_ratio"] = {
+            f"seed{s}": test_scores(net, ck["extra"]["decision"], args.test, entry["vote"]["test"]["count_ratio"])
+            for (_, ck, net), s in zip(mem, args.seeds)}
         # real recordings: every member with its own decision, and the ensemble
         runs = {}
         for (path, _, _), s in zip(mem, args.seeds):
@@ -266,6 +282,8 @@ def table(res: dict) -> str:
                   "| run | threshold | " + " | ".join(METRICS) + " |", "|---|---:|" + "---:|" * len(METRICS)]
         rows = {"raw degraded events": {"threshold": float("nan"), "test": res["raw_test"]},
                 **e["members"], "mean of the members": None, "ensemble": e["ensemble"], "vote (2 of 3)": e["vote"]}
+        rows.update({f"{k} at the vote's count ratio (threshold fitted on the test split)":
+                     {"threshold": m["threshold"], "test": m} for k, m in e.get("members_at_vote_ratio", {}).items()})
         for label, r in rows.items():
             if r is None:
                 vals = [np.mean([m["test"][k] for m in e["members"].values()]) for k in METRICS]
