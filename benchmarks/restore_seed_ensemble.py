@@ -1,18 +1,24 @@
-"""Do the study's three training seeds of a restorer, averaged, restore better than each
+"""Do the study's three training seeds of a restorer, combined, restore better than each
 alone? (issue 11: F1, count ratio and all-voxel L1 on the simulated test split; DAVIS346
 consistency and the DVXplorer person / background shares on real recordings.)
 
 The seeds of one restorer (``models/restore_image`` or ``models/restore_events``) differ
 most on the real recordings (DVXplorer background 17-26 %, DAVIS346 4-13 % of the output
-not recorded; ``benchmarks/results/restore_seeds_real.md``). An ensemble is the standard way
-to cut that variance without new training: here the members' occupancy probabilities
-and count heads are averaged voxel by voxel (:class:`SeedEnsemble`), and the voxel -> event
-decision is fitted to the average as the training fits each member's
-(:func:`rdnet.train.loop.fit_decision`: the count-ratio-1 threshold on the held-out
-training sequences, then the support rule). As a check of that path, each member's own
-decision is refitted the same way and must equal the one stored in its checkpoint.
+not recorded; ``benchmarks/results/restore_seeds_real.md``). Combining networks is the
+standard way to cut that variance without new training. Two forms:
 
-Scores, for every member (its stored decision) and the ensemble:
+- **average** (:class:`SeedEnsemble`): the members' occupancy probabilities and count heads
+  averaged voxel by voxel, and the voxel -> event decision fitted to the average as the
+  training fits each member's (:func:`rdnet.train.loop.fit_decision`: the count-ratio-1
+  threshold on the held-out training sequences, then the support rule). As a check of that
+  path, each member's own decision is refitted the same way and must equal the one stored
+  in its checkpoint.
+- **vote** (:class:`SeedVote`): each member's stored decision; a voxel is kept where 2 of the
+  3 keep it, with the median of their counts.
+
+Scores, for every member (its stored decision), both combinations and, as a control, each
+member alone at the vote's count ratio (its threshold fitted on the test split itself, so
+favouring the member: what a higher threshold alone gives):
 
 - the study's test split (``data/pairs/test.h5``): precision, recall, F1, count ratio and
   the signed-voxel L1 over all voxels and over event voxels
@@ -20,7 +26,7 @@ Scores, for every member (its stored decision) and the ensemble:
 - real recordings, as ``restore_real`` scores them (``restore_training_scenes.score_real``):
   the image-guided restorer on the DAVIS346, the events-only one on the others.
 
-Costs 3x one restorer's inference (the members run one after another, dense).
+Each combination costs 3x one restorer's inference (the members run one after another, dense).
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/restore_seed_ensemble.py      # about 5 min
         writes benchmarks/results/restore_seed_ensemble.{json,md}
