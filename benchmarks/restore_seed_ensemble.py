@@ -23,12 +23,15 @@ favouring the member: what a higher threshold alone gives):
 - the study's test split (``data/pairs/test.h5``): precision, recall, F1, count ratio and
   the signed-voxel L1 over all voxels and over event voxels
   (``restore_learned_eval.pair_metrics``);
+- the same test sequences rendered by the independent circuit generator (one draw,
+  :func:`rdnet.study.independent.circuit_pairs`, as stage ``restoration_circuit`` renders
+  them; ``--no-circuit`` leaves it out), with the same metrics;
 - real recordings, as ``restore_real`` scores them (``restore_training_scenes.score_real``):
   the image-guided restorer on the DAVIS346, the events-only one on the others.
 
 Each combination costs 3x one restorer's inference (the members run one after another, dense).
 
-    PYTHONPATH=$PWD .venv/bin/python benchmarks/restore_seed_ensemble.py      # about 5 min
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/restore_seed_ensemble.py      # about 7 min
         writes benchmarks/results/restore_seed_ensemble.{json,md}
 """
 from __future__ import annotations
@@ -47,7 +50,7 @@ from torch import nn
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from restore_learned_eval import pair_metrics  # noqa: E402
-from restore_training_scenes import METRICS, score_real  # noqa: E402
+from restore_training_scenes import METRICS, restorers_from, score_real  # noqa: E402
 
 log = logging.getLogger("restore_seed_ensemble")
 
@@ -140,66 +143,64 @@ def fitted(net, train: Path, val_rows, image: bool) -> dict:
     return fit_decision(net, train, val_rows, torch.device("cpu"), image=image, support_rule=True)
 
 
-def raw_scores(pairs: Path) -> dict:
-    """The degraded events themselves, scored as a restorer's output."""
-    from rdnet.train.data import PairsDataset
-    data = PairsDataset(pairs, crop=None, augment=False)
-    try:
-        rows = [data[i] for i in range(len(data))]
-    finally:
-        data.close()
-    degraded = np.stack([r["counts_degraded"].numpy() for r in rows])
-    return pair_metrics(degraded, np.stack([r["counts_undegraded"].numpy() for r in rows]), degraded)
+class TestSplit:
+    """A test pairs file read once: its undegraded (target) and degraded counts, the raw
+    stream's scores, and every network's heads predicted once (:meth:`scorer`)."""
 
+    def __init__(self, pairs: Path):
+        from rdnet.train.data import PairsDataset
+        self.pairs = pairs
+        data = PairsDataset(pairs, crop=None, augment=False)
+        try:
+            rows = [data[i] for i in range(len(data))]
+        finally:
+            data.close()
+        self.target = np.stack([r["counts_undegraded"].numpy() for r in rows])
+        self.degraded = np.stack([r["counts_degraded"].numpy() for r in rows])
+        self.raw = pair_metrics(self.degraded, self.target, self.degraded)
 
-def test_scores(net, decision: dict, pairs: Path, match_ratio: float | None = None) -> dict:
-    """The test split's event metrics of ``net`` under ``decision``; with ``match_ratio``,
-    under the threshold at which its count ratio on the test split comes closest to that
-    value instead (fitted on the test split itself: a control, not a usable decision)."""
-    from rdnet.nn.decision import decide_counts, decision_gain, support_applies
-    from rdnet.train.data import PairsDataset
-    from rdnet.train.loop import predict_counts
-    data = PairsDataset(pairs, crop=None, augment=False)
-    try:
-        out, prob, target, support = predict_counts(net, data, torch.device("cpu"),
-                                                     image=net.image_channels > 0, with_support=True)
-        degraded = np.stack([data[i]["counts_degraded"].numpy() for i in range(len(data))])
-    finally:
-        data.close()
-    sup = support if support_applies(decision) else None
+    def scorer(self, net):
+        """``score(decision, match_ratio=None)``: the event metrics of ``net``'s heads (predicted
+        here, once) under ``decision``; with ``match_ratio``, under the threshold at which the
+        count ratio on this split comes closest to that value instead (fitted on the split
+        itself: a control, not a usable decision)."""
+        from rdnet.nn.decision import decide_counts, decision_gain, support_applies
+        from rdnet.train.data import PairsDataset
+        from rdnet.train.loop import predict_counts
+        data = PairsDataset(self.pairs, crop=None, augment=False)
+        try:
+            out, prob, _, support = predict_counts(net, data, torch.device("cpu"), image=net.image_channels > 0,
+                                                   with_support=True)
+        finally:
+            data.close()
 
-    def at(threshold: float) -> dict:
-        return {**pair_metrics(decide_counts(out, prob, threshold, sup, decision_gain(decision)), target, degraded),
-                "threshold": threshold}
-    if match_ratio is None:
-        return at(float(decision["threshold"]))
-    lo, hi = 0.0, 1.0                     # the count ratio falls as the threshold rises
-    for _ in range(30):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if at(mid)["count_ratio"] > match_ratio else (lo, mid)
-    return min((at(lo), at(hi)), key=lambda m: abs(m["count_ratio"] - match_ratio))
+        def score(decision: dict, match_ratio: float | None = None) -> dict:
+            sup = support if support_applies(decision) else None
+
+            def at(threshold: float) -> dict:
+                restored = decide_counts(out, prob, threshold, sup, decision_gain(decision))
+                return {**pair_metrics(restored, self.target, self.degraded), "threshold": threshold}
+            if match_ratio is None:
+                return at(float(decision["threshold"]))
+            lo, hi = 0.0, 1.0                     # the count ratio falls as the threshold rises
+            for _ in range(30):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if at(mid)["count_ratio"] > match_ratio else (lo, mid)
+            return min((at(lo), at(hi)), key=lambda m: abs(m["count_ratio"] - match_ratio))
+        return score
 
 
 def real_scores(rec: str, params: dict, runs: dict, work: Path) -> dict:
-    """``runs``: label -> LearnedRestorer (or None for raw / BAF), scored by
-    ``restore_training_scenes.score_real`` with ``load_restorer`` answering each label."""
-    import rdnet.restore.learned as learned
+    """``runs``: label -> LearnedRestorer, scored by ``restore_training_scenes.score_real``
+    (raw and BAF beside them) with ``load_restorer`` answering each label."""
     from rdnet.restore.real import recordings
     found = dict(recordings([ROOT / "data" / "real", ROOT.parent / "shared" / "real"]))
     if rec not in found:
         log.warning("%s not found: skipped", rec)
         return {}
-    original = learned.load_restorer
-
-    def answer(checkpoint, **kw):
-        return runs[Path(checkpoint).name]
-    learned.load_restorer = answer
-    try:
-        spec = {"raw": ("raw", None), "baf": ("baf", None),
-                **{k: ("rdnet", Path(k)) for k, r in runs.items() if r is not None}}
+    spec = {"raw": ("raw", None), "baf": ("baf", None), **{k: ("rdnet", Path(k)) for k in runs}}
+    with restorers_from(lambda _: lambda checkpoint, **kw: runs[Path(checkpoint).name]):
         return {"path": str(found[rec].relative_to(ROOT.parent)), **score_real(found[rec], rec, params, spec, work)}
-    finally:
-        learned.load_restorer = original
 
 
 def main() -> None:
@@ -219,12 +220,25 @@ def main() -> None:
     ap.add_argument("--skip-recordings", nargs="*", default=["prophesee_evk4_night"],
                     help="real recordings left out (the 10 s night file takes long with 3 dense members)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/restore_seed_ensemble")
+    ap.add_argument("--no-circuit", dest="circuit", action="store_false",
+                    help="leave out the test split rendered by the independent circuit generator")
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     torch.set_num_threads(1)       # as the training (train.threads), so refitted decisions match bit for bit
     params = load_params(args.params)
     _, val_rows = split_rows(args.train, int(params["train"]["val_sequences"]))
-    res = {"seeds": args.seeds, "val_rows": int(len(val_rows)), "raw_test": raw_scores(args.test), "restorers": {}}
+    splits = {"test": TestSplit(args.test)}
+    circuit_dir = tempfile.TemporaryDirectory()
+    if args.circuit:            # the same test sequences rendered by the independent generator
+        from rdnet.study.data import sequences
+        from rdnet.study.independent import circuit_pairs
+        pairs, _ = circuit_pairs(params, sequences(ROOT / "data/events", "test"), Path(circuit_dir.name), seed=0)
+        splits["circuit"] = TestSplit(pairs)
+    res = {"seeds": args.seeds, "val_rows": int(len(val_rows)), "raw": {k: sp.raw for k, sp in splits.items()},
+           "restorers": {}}
+
+    def scores(net, decision, match=None):
+        return {k: sp.scorer(net)(decision, None if match is None else match[k]) for k, sp in splits.items()}
     for name in args.restorers:
         folder, image, recs = RESTORERS[name]
         mem = members(ROOT / folder, args.seeds)
@@ -236,25 +250,24 @@ def main() -> None:
                     and (refit.get("support") or {}) == (stored.get("support") or {}))
             if not same:
                 raise SystemExit(f"{path}: the refitted decision {refit} differs from the stored {stored}")
-            entry["members"][f"seed{s}"] = {"threshold": stored["threshold"],
-                                            "test": test_scores(net, stored, args.test)}
+            entry["members"][f"seed{s}"] = {"threshold": stored["threshold"], **scores(net, stored)}
             log.info("%s seed %d: %s", name, s, entry["members"][f"seed{s}"]["test"])
         ens = SeedEnsemble([net for _, _, net in mem]).eval()
         decision = fitted(ens, args.train, val_rows, image)
         entry["ensemble"] = {"threshold": decision["threshold"], "decision": decision,
-                             "test": test_scores(ens, decision, args.test)}
+                             **scores(ens, decision)}
         log.info("%s ensemble: %s", name, entry["ensemble"]["test"])
         supports = [ck["extra"]["decision"].get("support") for _, ck, _ in mem]
         if not all(sp and sp.get("drop") for sp in supports):
             raise SystemExit(f"{name}: the vote needs every member to drop unsupported voxels")
         vote = SeedVote([net for _, _, net in mem], [ck["extra"]["decision"]["threshold"] for _, ck, _ in mem]).eval()
         vote_decision = {**mem[0][1]["extra"]["decision"], "threshold": 0.5, "fitted_on": "vote of the members"}
-        entry["vote"] = {"threshold": 0.5, "test": test_scores(vote, vote_decision, args.test)}
+        entry["vote"] = {"threshold": 0.5, **scores(vote, vote_decision)}
         log.info("%s vote: %s", name, entry["vote"]["test"])
         # control: each member alone at the vote's count ratio (its threshold fitted on the test split)
-        entry["members_at_vote_ratio"] = {
-            f"seed{s}": test_scores(net, ck["extra"]["decision"], args.test, entry["vote"]["test"]["count_ratio"])
-            for (_, ck, net), s in zip(mem, args.seeds)}
+        ratios = {k: entry["vote"][k]["count_ratio"] for k in splits}
+        entry["members_at_vote_ratio"] = {f"seed{s}": scores(net, ck["extra"]["decision"], ratios)
+                                          for (_, ck, net), s in zip(mem, args.seeds)}
         # real recordings: every member with its own decision, and the ensemble
         runs = {}
         for (path, _, _), s in zip(mem, args.seeds):
@@ -274,6 +287,7 @@ def main() -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.out.with_suffix(".json"), json.dumps(res, indent=2, default=float) + "\n")
     write_text_atomic(args.out.with_suffix(".md"), table(res))
+    circuit_dir.cleanup()
     print(table(res))
 
 
@@ -283,19 +297,24 @@ def table(res: dict) -> str:
              "members' occupancy probabilities and count heads averaged per voxel, its decision fitted "
              f"as training fits each member's ({res['val_rows']} held-out training rows). Vote: the "
              "members' own decisions, a voxel kept where 2 of 3 keep it, with the median of their counts.", ""]
+    titles = {"test": "Simulated test split (rdnet's simulator)",
+              "circuit": "The same test sequences rendered by the independent circuit generator (one draw)"}
     for name, e in res["restorers"].items():
-        lines += [f"## `{name}`", "", "Simulated test split:", "",
-                  "| run | threshold | " + " | ".join(METRICS) + " |", "|---|---:|" + "---:|" * len(METRICS)]
-        rows = {"raw degraded events": {"threshold": float("nan"), "test": res["raw_test"]},
-                **e["members"], "mean of the members": None, "ensemble": e["ensemble"], "vote (2 of 3)": e["vote"]}
-        rows.update({f"{k} at the vote's count ratio (threshold fitted on the test split)":
-                     {"threshold": m["threshold"], "test": m} for k, m in e.get("members_at_vote_ratio", {}).items()})
-        for label, r in rows.items():
-            if r is None:
-                vals = [np.mean([m["test"][k] for m in e["members"].values()]) for k in METRICS]
-                lines.append(f"| {label} | - | " + " | ".join(f"{v:.4f}" for v in vals) + " |")
-                continue
-            lines.append(f"| {label} | {r['threshold']:.3f} | " + " | ".join(f"{r['test'][k]:.4f}" for k in METRICS) + " |")
+        lines += [f"## `{name}`"]
+        for split, raw in res["raw"].items():
+            lines += ["", f"{titles.get(split, split)}:", "",
+                      "| run | threshold | " + " | ".join(METRICS) + " |", "|---|---:|" + "---:|" * len(METRICS)]
+            rows = {"raw degraded events": {"threshold": float("nan"), split: raw},
+                    **e["members"], "mean of the members": None, "ensemble": e["ensemble"], "vote (2 of 3)": e["vote"]}
+            rows.update({f"{k} at the vote's count ratio (threshold fitted on this split)": m
+                         for k, m in e.get("members_at_vote_ratio", {}).items()})
+            for label, r in rows.items():
+                if r is None:
+                    vals = [np.mean([m[split][k] for m in e["members"].values()]) for k in METRICS]
+                    lines.append(f"| {label} | - | " + " | ".join(f"{v:.4f}" for v in vals) + " |")
+                    continue
+                thr = r[split].get("threshold", r.get("threshold"))
+                lines.append(f"| {label} | {thr:.3f} | " + " | ".join(f"{r[split][k]:.4f}" for k in METRICS) + " |")
         for rec, r in e.get("real", {}).items():
             if not r:
                 continue

@@ -30,6 +30,7 @@ reuses those already there).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import os
@@ -59,6 +60,21 @@ def training_pairs(params: dict, scenes_overrides: dict, work: Path) -> Path:
     simulate_sequences(p, work / "scenes", work / "interp", work / "events", splits=("train",))
     make_pairs(p, work / "events", work / "pairs", splits=("train",))
     return work / "pairs" / "train.h5"
+
+
+@contextlib.contextmanager
+def restorers_from(wrap):
+    """Inside the block, ``rdnet restore``'s restorer lookup
+    (:func:`rdnet.restore.learned.load_restorer`, which :func:`score_real` reaches) answers with
+    ``wrap(original)``: a function of the same signature, given the original lookup. How a
+    benchmark hands a restorer that is not a checkpoint to the user's code path."""
+    import rdnet.restore.learned as learned
+    original = learned.load_restorer
+    learned.load_restorer = wrap(original)
+    try:
+        yield
+    finally:
+        learned.load_restorer = original
 
 
 def score_real(path: Path, name: str, params: dict, runs: dict[str, tuple[str, Path | None]], work: Path) -> dict:

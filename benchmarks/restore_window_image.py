@@ -40,7 +40,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from restore_training_scenes import score_real  # noqa: E402
+from restore_training_scenes import restorers_from, score_real  # noqa: E402
 
 log = logging.getLogger("restore_window_image")
 IMAGES = ("nearest", "linear", "flow", "flat")
@@ -87,7 +87,6 @@ def restorer_with(restorer, images: WindowImages):
 
 
 def main() -> None:
-    import rdnet.restore.learned as learned
     from rdnet.config import load_params
     from rdnet.eval.report import write_text_atomic
     from rdnet.events.io import load
@@ -104,25 +103,18 @@ def main() -> None:
     params = load_params(args.params)
     rec = load(args.recording)
     grey = rec.frames.grey()
-    original = learned.load_restorer
     res = {"recording": str(args.recording.relative_to(ROOT)), "window_us": int(params["restore"]["window_us"]),
            "seeds": args.seeds, "runs": {}}
-    try:
-        for kind in args.images:
-            images = WindowImages(grey, rec.frames.t_us, kind)
-
-            def load_swapped(checkpoint, **kw):
-                return restorer_with(original(checkpoint, **kw), images)
-            learned.load_restorer = load_swapped
-            runs = {f"{kind}/seed{s}": ("rdnet", args.models / f"seed{s}" / "model.pt") for s in args.seeds}
-            if kind == args.images[0]:
-                runs = {"raw": ("raw", None), "baf": ("baf", None), **runs}
-            with tempfile.TemporaryDirectory() as tmp:
-                scored = score_real(args.recording, "davis346_road", params, runs, Path(tmp))
-            res["events"] = scored["events"]
-            res["runs"].update(scored["methods"])
-    finally:
-        learned.load_restorer = original
+    for kind in args.images:
+        images = WindowImages(grey, rec.frames.t_us, kind)
+        runs = {f"{kind}/seed{s}": ("rdnet", args.models / f"seed{s}" / "model.pt") for s in args.seeds}
+        if kind == args.images[0]:
+            runs = {"raw": ("raw", None), "baf": ("baf", None), **runs}
+        with restorers_from(lambda load: lambda checkpoint, **kw: restorer_with(load(checkpoint, **kw), images)), \
+                tempfile.TemporaryDirectory() as tmp:
+            scored = score_real(args.recording, "davis346_road", params, runs, Path(tmp))
+        res["events"] = scored["events"]
+        res["runs"].update(scored["methods"])
     write_text_atomic(args.out.with_suffix(".json"), json.dumps(res, indent=2) + "\n")
     write_text_atomic(args.out.with_suffix(".md"), table(res))
     print(table(res))
