@@ -237,8 +237,11 @@ def main() -> None:
     res = {"seeds": args.seeds, "val_rows": int(len(val_rows)), "raw": {k: sp.raw for k, sp in splits.items()},
            "restorers": {}}
 
+    scorers = {}                # id(net) -> its scorer per split: each network predicted once
+
     def scores(net, decision, match=None):
-        return {k: sp.scorer(net)(decision, None if match is None else match[k]) for k, sp in splits.items()}
+        per_split = scorers.setdefault(id(net), {k: sp.scorer(net) for k, sp in splits.items()})
+        return {k: f(decision, None if match is None else match[k]) for k, f in per_split.items()}
     for name in args.restorers:
         folder, image, recs = RESTORERS[name]
         mem = members(ROOT / folder, args.seeds)
