@@ -17,7 +17,9 @@ after ``--warmup`` and reports the mean wall time per step:
 On a GPU, ``loop - no_sync`` is what the per-step synchronisation costs, ``no_sync - staged``
 the host's data preparation and copy, and ``staged`` against the GPU's own kernel time (a
 profiler) whether the step is bound by issuing kernels. On a CPU the differences say how much
-of a step is data. Results: ``benchmarks/results/train_step.json`` (append with ``--label``).
+of a step is data. ``--adam loop foreach --rounds 3`` times the step with the training's
+Adam update (torch's per-parameter loop, its CPU default) against its multi-tensor update,
+alternated round by round (session 41: the same weights bit for bit, no faster on CPU). Results: ``benchmarks/results/train_step.json`` (append with ``--label``).
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_train_step.py --pairs data/pairs/train.h5 \\
         --task restore --size tiny --crop 48 --device cpu --threads 1
@@ -48,8 +50,10 @@ def _sync(device: torch.device) -> None:
 
 
 def measure(task: str, size: str, crop: int, batch: int, device_name: str, pairs: Path, steps: int,
-            warmup: int, seed: int = 0) -> dict:
-    """Mean seconds per step of each variant (module docstring)."""
+            warmup: int, seed: int = 0, adam: str = "loop") -> dict:
+    """Mean seconds per step of each variant (module docstring). ``adam``: ``loop`` (torch's
+    per-parameter loop, its CPU default and the training's update) or ``foreach`` (its
+    multi-tensor update, torch's default on CUDA)."""
     cfg = TrainConfig(iterations=steps + warmup, batch_size=batch, crop=crop, device=device_name, seed=seed,
                       dvclive=False, log_every=10 ** 6, ckpt_every=10 ** 6)
     device = resolve_device(cfg.device)
@@ -61,6 +65,9 @@ def measure(task: str, size: str, crop: int, batch: int, device_name: str, pairs
     net = build_seeded(args, cfg.seed).to(device)
     net.train()
     opt, sched = make_optimizer(task, net, cfg)
+    if device.type == "cpu":          # on CUDA both settings take torch's default there (foreach)
+        for group in opt.param_groups:
+            group["foreach"] = adam == "foreach"
 
     def step(batch, check: bool):
         loss, _ = compute_loss(task, net, batch, cfg)
@@ -118,6 +125,9 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--steps", type=int, default=30)
     ap.add_argument("--warmup", type=int, default=5)
+    ap.add_argument("--adam", nargs="+", default=["loop"], choices=["loop", "foreach"],
+                    help="Adam's update on CPU: the per-parameter loop (the training's) or the multi-tensor one")
+    ap.add_argument("--rounds", type=int, default=1, help="each --adam setting this many times, alternated")
     ap.add_argument("--label", default=None, help="results key (default: the device)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "train_step.json")
     args = ap.parse_args()
@@ -126,9 +136,13 @@ def main() -> None:
     rows = []
     for size in args.size:
         for crop in args.crop:
-            ms = measure(args.task, size, crop, args.batch, args.device, args.pairs, args.steps, args.warmup)
-            rows.append({"task": args.task, "size": size, "crop": crop, "batch": args.batch, "ms_per_step": ms})
-            print(json.dumps(rows[-1]), flush=True)
+            for rnd in range(args.rounds):
+                for adam in args.adam:
+                    ms = measure(args.task, size, crop, args.batch, args.device, args.pairs, args.steps,
+                                 args.warmup, adam=adam)
+                    rows.append({"task": args.task, "size": size, "crop": crop, "batch": args.batch,
+                                 "adam": adam, "round": rnd, "ms_per_step": ms})
+                    print(json.dumps(rows[-1]), flush=True)
     res = json.loads(args.out.read_text()) if args.out.exists() else {"benchmark": "train_step", "runs": {}}
     res["runs"][args.label or args.device] = {"device": name, "python": platform.python_version(),
                                               "torch": torch.__version__, "steps": args.steps,
