@@ -1,0 +1,182 @@
+"""Where on DAVIS346 does the learned restorer delete events, and which of its deletions cost
+the event-frame consistency? (issue 11, goal "DAVIS346 consistency at least raw")
+
+The restorer keeps 97 % of the recording's events and scores 0.325 against raw's 0.348; its
+deletions alone score 0.332, and BAF, deleting as many, 0.339 (``restore_operating_curves``).
+This script splits the deletions by the brightness of the scene where they happen: each
+recorded event gets the intensity of its pixel in the nearest APS frame (``frames.grey()``,
+linear, 0-1), and the events are cut into quintiles of that intensity. Per quintile it reports
+the share of the events deleted by
+
+- the restorer as ``rdnet restore`` runs it (the guiding image: the nearest frame),
+- the same restorer reading a flat image (the nearest frame's mean everywhere; as in
+  ``restore_window_image``), which says how much of the pattern the image drives,
+- BAF (10 ms, ``restore.baf_dt_us``),
+
+and the event-frame consistency (``rdnet.deblur.consistency``, each stream scored against the
+raw one as ``rdnet restore`` scores it) of the restored stream with its deletions in the dark
+part (the darkest ``--dark-quantile`` of the events) undone, and with its other deletions
+undone. A deletion is a recorded event missing from the output (the restorer keeps the
+recorded timestamps, ``restore.event_times: input``).
+
+``--checkpoints`` restores with the given image-guided checkpoints (one row each; ``default``,
+the default: the restorer ``rdnet restore`` finds, the study's seed 0 or the packaged one).
+
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/restore_dark_deletions.py        # about 1 min
+        writes benchmarks/results/restore_dark_deletions.{json,md}
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from restore_training_scenes import restorers_from  # noqa: E402
+from restore_window_image import WindowImages, restorer_with  # noqa: E402
+
+log = logging.getLogger("restore_dark_deletions")
+QUINTILES = 5
+
+
+def event_keys(a: np.ndarray, width: int) -> np.ndarray:
+    """One int64 per event of the structured array ``a`` (time, pixel, polarity)."""
+    return (a["t"].astype(np.int64) << 18) + (a["y"].astype(np.int64) * width + a["x"]) * 2 + a["p"]
+
+
+def frame_intensity(rec) -> np.ndarray:
+    """Per recorded event: the linear grey level of its pixel in the frame nearest in time."""
+    e, ft = rec.events.array, np.asarray(rec.frames.t_us, np.int64)
+    i = np.clip(np.searchsorted(ft, e["t"]), 0, len(ft) - 1)
+    prev = np.clip(i - 1, 0, len(ft) - 1)
+    near = np.where(np.abs(ft[prev] - e["t"]) < np.abs(ft[i] - e["t"]), prev, i)
+    return rec.frames.grey()[near, e["y"], e["x"]].astype(np.float64)
+
+
+def deleted_mask(rec, out_path: Path) -> np.ndarray:
+    """Recorded events of ``rec`` that the restored stream at ``out_path`` does not hold."""
+    from rdnet.events.io import load
+    out = load(out_path).events.array
+    w = rec.events.width
+    return ~np.isin(event_keys(rec.events.array, w), event_keys(out, w))
+
+
+def restore(rec_path: Path, params: dict, checkpoint: Path | None, image: str | None, out: Path) -> Path:
+    """``rdnet restore``'s learned restoration of ``rec_path`` into ``out``; ``image`` ``flat``
+    hands the network a flat image instead of the nearest frame."""
+    from rdnet.events.io import load
+    from rdnet.restore.run import restore_recording
+    if image is None:
+        restore_recording(rec_path, out, params, method="rdnet", checkpoint=checkpoint, progress=False)
+        return out
+    r = load(rec_path)
+    images = WindowImages(r.frames.grey(), r.frames.t_us, image)
+    with restorers_from(lambda ld: lambda ck, **kw: restorer_with(ld(ck, **kw), images)):
+        restore_recording(rec_path, out, params, method="rdnet", checkpoint=checkpoint, progress=False)
+    return out
+
+
+def main() -> None:
+    from rdnet.baselines.baf import baf_mask
+    from rdnet.config import load_params, section
+    from rdnet.deblur.consistency import LogFrames, compare_consistency
+    from rdnet.eval.report import write_text_atomic
+    from rdnet.events.core import Events
+    from rdnet.events.io import load
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--params", type=Path, default=ROOT / "params.yaml")
+    ap.add_argument("--recording", type=Path, default=ROOT / "data/real/davis346_road/davis346.aedat4")
+    ap.add_argument("--checkpoints", nargs="*", default=["default"],
+                    help="image-guided checkpoints; 'default': the restorer rdnet restore finds")
+    ap.add_argument("--dark-quantile", type=float, default=0.4)
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/restore_dark_deletions")
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    params = load_params(args.params)
+    rec = load(args.recording)
+    e, w, h = rec.events.array, rec.events.width, rec.events.height
+    inten = frame_intensity(rec)
+    edges = np.quantile(inten, np.linspace(0, 1, QUINTILES + 1))
+    band = np.clip(np.searchsorted(edges, inten, side="right") - 1, 0, QUINTILES - 1)
+    dark = inten < np.quantile(inten, args.dark_quantile)
+    baf = baf_mask(rec.events, int(params["restore"]["baf_dt_us"]))
+    sensor = section(params, "sensor")
+    frames = LogFrames.of(rec.frames, rec.events, sensor.log_eps)
+
+    def consistency(arr: np.ndarray) -> float:
+        ev = Events(np.sort(arr, order="t", kind="stable"), w, h)
+        return compare_consistency(frames, {"raw": rec.events, "v": ev}, sensor.threshold_on,
+                                   sensor.threshold_off)["v"]["r2_fitted"]
+
+    def by_band(deleted: np.ndarray) -> list[float]:
+        return [float(deleted[band == b].mean()) for b in range(QUINTILES)]
+
+    res = {"recording": str(args.recording.relative_to(ROOT)), "events": int(len(e)),
+           "intensity_quintile_edges": [float(x) for x in edges], "dark_quantile": args.dark_quantile,
+           "dark_events": int(dark.sum()), "raw_consistency": consistency(e),
+           "baf": {"deleted": int((~baf).sum()), "deleted_by_quintile": by_band(~baf),
+                   "consistency": consistency(e[baf]),
+                   "consistency_dark_deletions_only": consistency(e[baf | ~dark])},
+           "runs": {}}
+    with tempfile.TemporaryDirectory() as tmp:
+        for k, ck in enumerate(None if c == "default" else Path(c) for c in args.checkpoints):
+            for image in (None, "flat"):
+                label = f"{ck if ck is not None else 'rdnet restore default'}{' / flat image' if image else ''}"
+                out = restore(args.recording, params, ck, image, Path(tmp) / f"r{k}_{image}.h5")
+                deleted = deleted_mask(rec, out)
+                kept_out = load(out).events.array
+                run = {"deleted": int(deleted.sum()), "events_out": int(len(kept_out)),
+                       "deleted_by_quintile": by_band(deleted),
+                       "deleted_dark_share": float((deleted & dark).sum() / max(1, deleted.sum())),
+                       "deleted_baf_supported": float((deleted & baf).sum() / max(1, deleted.sum())),
+                       "consistency": consistency(kept_out)}
+                if image is None:
+                    run.update({
+                        "consistency_dark_deletions_undone": consistency(np.concatenate([kept_out, e[deleted & dark]])),
+                        "consistency_other_deletions_undone": consistency(np.concatenate([kept_out, e[deleted & ~dark]])),
+                        "consistency_raw_minus_dark_deletions": consistency(e[~(deleted & dark)]),
+                        "consistency_raw_minus_other_deletions": consistency(e[~(deleted & ~dark)])})
+                res["runs"][label] = run
+                log.info("%s: %s", label, run)
+    write_text_atomic(args.out.with_suffix(".json"), json.dumps(res, indent=2) + "\n")
+    write_text_atomic(args.out.with_suffix(".md"), table(res))
+    print(table(res))
+
+
+def table(res: dict) -> str:
+    e = res["intensity_quintile_edges"]
+    bands = [f"{e[b]:.2f}-{e[b + 1]:.2f}" for b in range(QUINTILES)]
+    lines = [f"# Where the restorer deletes events on `{res['recording']}`", "",
+             f"{res['events']:,} recorded events, cut into quintiles of their pixel's grey level in the "
+             f"nearest frame; raw consistency R^2 {res['raw_consistency']:.4f}; \"dark\": the darkest "
+             f"{res['dark_quantile']:.0%} of the events ({res['dark_events']:,}).", "",
+             "Share of each quintile's events deleted:", "",
+             "| method | deleted | " + " | ".join(bands) + " | dark share of its deletions | BAF-supported share of its deletions | consistency R^2 |",
+             "|---|---:|" + "---:|" * QUINTILES + "---:|---:|---:|"]
+    b = res["baf"]
+    lines.append(f"| BAF | {b['deleted']:,} | " + " | ".join(f"{x:.3f}" for x in b["deleted_by_quintile"])
+                 + f" | | | {b['consistency']:.4f} |")
+    for label, r in res["runs"].items():
+        lines.append(f"| {label} | {r['deleted']:,} | " + " | ".join(f"{x:.3f}" for x in r["deleted_by_quintile"])
+                     + f" | {r['deleted_dark_share']:.3f} | {r['deleted_baf_supported']:.3f} | {r['consistency']:.4f} |")
+    lines += ["", "Consistency R^2 with part of the deletions undone (each stream scored against raw):", "",
+              "| restorer | restored | dark deletions undone | other deletions undone | raw minus its dark deletions | raw minus its other deletions |",
+              "|---|---:|---:|---:|---:|---:|"]
+    for label, r in res["runs"].items():
+        if "consistency_dark_deletions_undone" in r:
+            lines.append(f"| {label} | {r['consistency']:.4f} | {r['consistency_dark_deletions_undone']:.4f} | "
+                         f"{r['consistency_other_deletions_undone']:.4f} | {r['consistency_raw_minus_dark_deletions']:.4f} | "
+                         f"{r['consistency_raw_minus_other_deletions']:.4f} |")
+    lines += ["", f"BAF with its dark deletions only: {b['consistency_dark_deletions_only']:.4f}.", ""]
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main()
