@@ -21,6 +21,12 @@ recorded timestamps, ``restore.event_times: input``).
 
 ``--checkpoints`` restores with the given image-guided checkpoints (one row each; ``default``,
 the default: the restorer ``rdnet restore`` finds, the study's seed 0 or the packaged one).
+``--variants NAME=JSON ...`` also trains the image-guided stage 1 (seed 0, study settings) on
+training pairs simulated with those ``degrade`` overrides (``restore_training_scenes``'s
+pipeline; ``study={}`` reproduces the study's seed 0 bit for bit) and adds a row for each, to
+test whether a brightness-dependent part of the training degradation (shot noise 4x denser in
+the dark, ``degrade.shot_noise_bright_factor``; the bandwidth limit, slower in the dark) taught
+the dark deletions; ``--work DIR`` keeps and reuses their pairs and networks.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/restore_dark_deletions.py        # about 1 min
         writes benchmarks/results/restore_dark_deletions.{json,md}
@@ -82,6 +88,24 @@ def restore(rec_path: Path, params: dict, checkpoint: Path | None, image: str | 
     return out
 
 
+def train_variant(params: dict, degrade_overrides: dict, work: Path) -> Path:
+    """The image-guided stage 1, seed 0, trained on the training split simulated with
+    ``degrade_overrides`` (reused when ``work`` already holds it)."""
+    import copy
+    from restore_train_range import train
+    from restore_training_scenes import training_pairs
+    ck = work / "seed0" / "model.pt"
+    if ck.is_file():
+        log.info("reusing %s", ck)
+        return ck
+    p = copy.deepcopy(params)
+    p["degrade"] = {**p["degrade"], **degrade_overrides}
+    pairs = work / "pairs" / "train.h5"
+    if not pairs.is_file():
+        pairs = training_pairs(p, {}, work)
+    return train("restore", pairs, work / "seed0", 0, int(params["train"]["iterations"]))[0]
+
+
 def main() -> None:
     from rdnet.baselines.baf import baf_mask
     from rdnet.config import load_params, section
@@ -95,6 +119,9 @@ def main() -> None:
     ap.add_argument("--recording", type=Path, default=ROOT / "data/real/davis346_road/davis346.aedat4")
     ap.add_argument("--checkpoints", nargs="*", default=["default"],
                     help="image-guided checkpoints; 'default': the restorer rdnet restore finds")
+    ap.add_argument("--variants", nargs="*", default=[], metavar="NAME=JSON",
+                    help='degrade overrides to train seed 0 with, e.g. bright1=\'{"shot_noise_bright_factor": 1.0}\'')
+    ap.add_argument("--work", type=Path, default=None, help="keep the variants' pairs and networks here")
     ap.add_argument("--dark-quantile", type=float, default=0.4)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/restore_dark_deletions")
     args = ap.parse_args()
@@ -126,9 +153,17 @@ def main() -> None:
                    "consistency_dark_deletions_only": consistency(e[baf | ~dark])},
            "runs": {}}
     with tempfile.TemporaryDirectory() as tmp:
-        for k, ck in enumerate(None if c == "default" else Path(c) for c in args.checkpoints):
+        runs = [(None if c == "default" else Path(c), "rdnet restore default" if c == "default" else c)
+                for c in args.checkpoints]
+        for item in args.variants:
+            name, spec = item.split("=", 1)
+            overrides = json.loads(spec)
+            runs.append((train_variant(params, overrides, (args.work or Path(tmp)) / name),
+                         f"variant {name} {json.dumps(overrides)}"))
+            res.setdefault("variants", {})[name] = overrides
+        for k, (ck, name) in enumerate(runs):
             for image in (None, "flat"):
-                label = f"{ck if ck is not None else 'rdnet restore default'}{' / flat image' if image else ''}"
+                label = f"{name}{' / flat image' if image else ''}"
                 out = restore(args.recording, params, ck, image, Path(tmp) / f"r{k}_{image}.h5")
                 deleted = deleted_mask(rec, out)
                 kept_out = load(out).events.array
