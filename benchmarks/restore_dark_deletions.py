@@ -90,7 +90,8 @@ def restore(rec_path: Path, params: dict, checkpoint: Path | None, image: str | 
 
 def train_variant(params: dict, degrade_overrides: dict, work: Path) -> Path:
     """The image-guided stage 1, seed 0, trained on the training split simulated with
-    ``degrade_overrides`` (reused when ``work`` already holds it)."""
+    ``degrade_overrides`` (``degrade`` keys, or a section name with a dict of its keys, such as
+    ``{"sensor": {"log_eps": 0.001}}``; reused when ``work`` already holds it)."""
     import copy
     from restore_train_range import train
     from restore_training_scenes import training_pairs
@@ -99,7 +100,11 @@ def train_variant(params: dict, degrade_overrides: dict, work: Path) -> Path:
         log.info("reusing %s", ck)
         return ck
     p = copy.deepcopy(params)
-    p["degrade"] = {**p["degrade"], **degrade_overrides}
+    for key, value in degrade_overrides.items():      # a dict value: overrides of that section
+        if isinstance(value, dict):
+            p[key] = {**p[key], **value}
+        else:
+            p["degrade"][key] = value
     pairs = work / "pairs" / "train.h5"
     if not pairs.is_file():
         pairs = training_pairs(p, {}, work)
