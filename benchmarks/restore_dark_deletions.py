@@ -26,7 +26,9 @@ training pairs simulated with those ``degrade`` overrides (``restore_training_sc
 pipeline; ``study={}`` reproduces the study's seed 0 bit for bit) and adds a row for each, to
 test whether a brightness-dependent part of the training degradation (shot noise 4x denser in
 the dark, ``degrade.shot_noise_bright_factor``; the bandwidth limit, slower in the dark) taught
-the dark deletions; ``--work DIR`` keeps and reuses their pairs and networks.
+the dark deletions; ``--work DIR`` keeps and reuses their pairs and networks. For each variant
+it also reports what its training pairs teach about dark events: the share of the degraded
+events lying in voxels that hold no undegraded event, by grey level.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/restore_dark_deletions.py        # about 1 min
         writes benchmarks/results/restore_dark_deletions.{json,md}
@@ -86,6 +88,26 @@ def restore(rec_path: Path, params: dict, checkpoint: Path | None, image: str | 
     with restorers_from(lambda ld: lambda ck, **kw: restorer_with(ld(ck, **kw), images)):
         restore_recording(rec_path, out, params, method="rdnet", checkpoint=checkpoint, progress=False)
     return out
+
+
+def unsupported_by_intensity(pairs: Path) -> dict:
+    """What the training pairs teach about dark events: the share of the degraded events that
+    lie in a voxel (bin, pixel, polarity) holding no undegraded event, overall and per quintile
+    of the blurry image's grey level at their pixel (noise, and events moved to another bin)."""
+    import h5py
+    with h5py.File(pairs, "r") as f:
+        img = f["blurry"][:, 0]
+        deg = np.stack([f["voxel_degraded_on"][:], f["voxel_degraded_off"][:]], 1)      # N, 2, B, H, W
+        und = np.stack([f["voxel_undegraded_on"][:], f["voxel_undegraded_off"][:]], 1)
+    sel = deg > 0
+    n = deg[sel].astype(np.int64)
+    grey = np.repeat(np.broadcast_to(img[:, None, None], deg.shape)[sel], n)
+    unsupported = np.repeat((und == 0)[sel], n)
+    edges = np.quantile(grey, np.linspace(0, 1, QUINTILES + 1))
+    band = np.clip(np.searchsorted(edges, grey, side="right") - 1, 0, QUINTILES - 1)
+    return {"degraded_events": int(n.sum()), "unsupported": float(unsupported.mean()),
+            "grey_quintile_edges": [float(x) for x in edges],
+            "unsupported_by_quintile": [float(unsupported[band == b].mean()) for b in range(QUINTILES)]}
 
 
 def train_variant(params: dict, degrade_overrides: dict, work: Path) -> Path:
@@ -163,9 +185,10 @@ def main() -> None:
         for item in args.variants:
             name, spec = item.split("=", 1)
             overrides = json.loads(spec)
-            runs.append((train_variant(params, overrides, (args.work or Path(tmp)) / name),
-                         f"variant {name} {json.dumps(overrides)}"))
-            res.setdefault("variants", {})[name] = overrides
+            work = (args.work or Path(tmp)) / name
+            runs.append((train_variant(params, overrides, work), f"variant {name} {json.dumps(overrides)}"))
+            res.setdefault("variants", {})[name] = {"overrides": overrides,
+                                                   "training_pairs": unsupported_by_intensity(work / "pairs" / "train.h5")}
         for k, (ck, name) in enumerate(runs):
             for image in (None, "flat"):
                 label = f"{name}{' / flat image' if image else ''}"
@@ -215,6 +238,16 @@ def table(res: dict) -> str:
                          f"{r['consistency_other_deletions_undone']:.4f} | {r['consistency_raw_minus_dark_deletions']:.4f} | "
                          f"{r['consistency_raw_minus_other_deletions']:.4f} |")
     lines += ["", f"BAF with its dark deletions only: {b['consistency_dark_deletions_only']:.4f}.", ""]
+    if res.get("variants"):
+        lines += ["What each variant's training pairs teach: the share of the degraded events in voxels with no "
+                  "undegraded event, by quintile of the blurry image's grey level at their pixel:", "",
+                  "| variant | degraded events | unsupported | " + " | ".join(f"quintile {b + 1}" for b in range(QUINTILES)) + " |",
+                  "|---|---:|---:|" + "---:|" * QUINTILES]
+        for name, v in res["variants"].items():
+            t = v["training_pairs"]
+            lines.append(f"| {name} | {t['degraded_events']:,} | {t['unsupported']:.3f} | "
+                         + " | ".join(f"{x:.3f}" for x in t["unsupported_by_quintile"]) + " |")
+        lines.append("")
     return "\n".join(lines)
 
 
