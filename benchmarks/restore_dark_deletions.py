@@ -28,7 +28,9 @@ test whether a brightness-dependent part of the training degradation (shot noise
 the dark, ``degrade.shot_noise_bright_factor``; the bandwidth limit, slower in the dark) taught
 the dark deletions; ``--work DIR`` keeps and reuses their pairs and networks. For each variant
 it also reports what its training pairs teach about dark events: the share of the degraded
-events lying in voxels that hold no undegraded event, by grey level.
+events lying in voxels that hold no undegraded event, by grey level; and the same for the
+study's test pairs and for the same test sequences rendered by the independent circuit
+generator (``--no-independent`` skips it), so that the statistic is not rdnet's model alone.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/restore_dark_deletions.py        # about 1 min
         writes benchmarks/results/restore_dark_deletions.{json,md}
@@ -53,11 +55,6 @@ log = logging.getLogger("restore_dark_deletions")
 QUINTILES = 5
 
 
-def event_keys(a: np.ndarray, width: int) -> np.ndarray:
-    """One int64 per event of the structured array ``a`` (time, pixel, polarity)."""
-    return (a["t"].astype(np.int64) << 18) + (a["y"].astype(np.int64) * width + a["x"]) * 2 + a["p"]
-
-
 def frame_intensity(rec) -> np.ndarray:
     """Per recorded event: the linear grey level of its pixel in the frame nearest in time."""
     e, ft = rec.events.array, np.asarray(rec.frames.t_us, np.int64)
@@ -67,27 +64,27 @@ def frame_intensity(rec) -> np.ndarray:
     return rec.frames.grey()[near, e["y"], e["x"]].astype(np.float64)
 
 
-def deleted_mask(rec, out_path: Path) -> np.ndarray:
-    """Recorded events of ``rec`` that the restored stream at ``out_path`` does not hold."""
-    from rdnet.events.io import load
-    out = load(out_path).events.array
-    w = rec.events.width
-    return ~np.isin(event_keys(rec.events.array, w), event_keys(out, w))
+def quintiles(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(edges, band)``: the quintile edges of ``values`` and each value's quintile (0-4)."""
+    edges = np.quantile(values, np.linspace(0, 1, QUINTILES + 1))
+    return edges, np.clip(np.searchsorted(edges, values, side="right") - 1, 0, QUINTILES - 1)
 
 
-def restore(rec_path: Path, params: dict, checkpoint: Path | None, image: str | None, out: Path) -> Path:
-    """``rdnet restore``'s learned restoration of ``rec_path`` into ``out``; ``image`` ``flat``
-    hands the network a flat image instead of the nearest frame."""
+def restore(rec_path: Path, rec, params: dict, checkpoint: Path | None, image: str | None, out: Path):
+    """``rdnet restore``'s learned restoration of ``rec_path`` (loaded: ``rec``) into ``out``:
+    ``(restored Events, deleted)``, ``deleted`` the recorded events missing from the output.
+    ``image`` ``flat`` hands the network a flat image instead of the nearest frame."""
     from rdnet.events.io import load
+    from rdnet.events.select import event_keys
     from rdnet.restore.run import restore_recording
     if image is None:
         restore_recording(rec_path, out, params, method="rdnet", checkpoint=checkpoint, progress=False)
-        return out
-    r = load(rec_path)
-    images = WindowImages(r.frames.grey(), r.frames.t_us, image)
-    with restorers_from(lambda ld: lambda ck, **kw: restorer_with(ld(ck, **kw), images)):
-        restore_recording(rec_path, out, params, method="rdnet", checkpoint=checkpoint, progress=False)
-    return out
+    else:
+        images = WindowImages(rec.frames.grey(), rec.frames.t_us, image)
+        with restorers_from(lambda ld: lambda ck, **kw: restorer_with(ld(ck, **kw), images)):
+            restore_recording(rec_path, out, params, method="rdnet", checkpoint=checkpoint, progress=False)
+    restored = load(out).events
+    return restored, ~np.isin(event_keys(rec.events), event_keys(restored))
 
 
 def unsupported_by_intensity(pairs: Path) -> dict:
@@ -103,11 +100,23 @@ def unsupported_by_intensity(pairs: Path) -> dict:
     n = deg[sel].astype(np.int64)
     grey = np.repeat(np.broadcast_to(img[:, None, None], deg.shape)[sel], n)
     unsupported = np.repeat((und == 0)[sel], n)
-    edges = np.quantile(grey, np.linspace(0, 1, QUINTILES + 1))
-    band = np.clip(np.searchsorted(edges, grey, side="right") - 1, 0, QUINTILES - 1)
+    edges, band = quintiles(grey)
     return {"degraded_events": int(n.sum()), "unsupported": float(unsupported.mean()),
             "grey_quintile_edges": [float(x) for x in edges],
             "unsupported_by_quintile": [float(unsupported[band == b].mean()) for b in range(QUINTILES)]}
+
+
+def independent_check(params: dict) -> dict:
+    """:func:`unsupported_by_intensity` of the study's test pairs (rdnet's simulator) and of the
+    same test sequences rendered by the independent circuit generator (``rdnet.circuit``, one
+    draw, as ``restoration_circuit``'s first): whether the dark prior is rdnet's alone."""
+    from rdnet.study.data import sequences
+    from rdnet.study.independent import circuit_pairs
+    out = {"rdnet simulator (data/pairs/test.h5)": unsupported_by_intensity(ROOT / "data" / "pairs" / "test.h5")}
+    with tempfile.TemporaryDirectory() as tmp:
+        pairs, _ = circuit_pairs(params, sequences(ROOT / "data" / "events", "test"), Path(tmp), 0)
+        out["circuit generator (the same test sequences)"] = unsupported_by_intensity(pairs)
+    return out
 
 
 def train_variant(params: dict, degrade_overrides: dict, work: Path) -> Path:
@@ -150,6 +159,8 @@ def main() -> None:
                     help='degrade overrides to train seed 0 with, e.g. bright1=\'{"shot_noise_bright_factor": 1.0}\'')
     ap.add_argument("--work", type=Path, default=None, help="keep the variants' pairs and networks here")
     ap.add_argument("--dark-quantile", type=float, default=0.4)
+    ap.add_argument("--no-independent", dest="independent", action="store_false",
+                    help="skip the training-pairs statistic on the test split and its circuit rendering")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/restore_dark_deletions")
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
@@ -157,8 +168,7 @@ def main() -> None:
     rec = load(args.recording)
     e, w, h = rec.events.array, rec.events.width, rec.events.height
     inten = frame_intensity(rec)
-    edges = np.quantile(inten, np.linspace(0, 1, QUINTILES + 1))
-    band = np.clip(np.searchsorted(edges, inten, side="right") - 1, 0, QUINTILES - 1)
+    edges, band = quintiles(inten)
     dark = inten < np.quantile(inten, args.dark_quantile)
     baf = baf_mask(rec.events, int(params["restore"]["baf_dt_us"]))
     sensor = section(params, "sensor")
@@ -192,9 +202,8 @@ def main() -> None:
         for k, (ck, name) in enumerate(runs):
             for image in (None, "flat"):
                 label = f"{name}{' / flat image' if image else ''}"
-                out = restore(args.recording, params, ck, image, Path(tmp) / f"r{k}_{image}.h5")
-                deleted = deleted_mask(rec, out)
-                kept_out = load(out).events.array
+                restored, deleted = restore(args.recording, rec, params, ck, image, Path(tmp) / f"r{k}_{image}.h5")
+                kept_out = restored.array
                 run = {"deleted": int(deleted.sum()), "events_out": int(len(kept_out)),
                        "deleted_by_quintile": by_band(deleted),
                        "deleted_dark_share": float((deleted & dark).sum() / max(1, deleted.sum())),
@@ -208,6 +217,8 @@ def main() -> None:
                         "consistency_raw_minus_other_deletions": consistency(e[~(deleted & ~dark)])})
                 res["runs"][label] = run
                 log.info("%s: %s", label, run)
+    if args.independent:
+        res["independent"] = independent_check(params)
     write_text_atomic(args.out.with_suffix(".json"), json.dumps(res, indent=2) + "\n")
     write_text_atomic(args.out.with_suffix(".md"), table(res))
     print(table(res))
@@ -246,6 +257,9 @@ def table(res: dict) -> str:
         for name, v in res["variants"].items():
             t = v["training_pairs"]
             lines.append(f"| {name} | {t['degraded_events']:,} | {t['unsupported']:.3f} | "
+                         + " | ".join(f"{x:.3f}" for x in t["unsupported_by_quintile"]) + " |")
+        for name, t in res.get("independent", {}).items():
+            lines.append(f"| test split, {name} | {t['degraded_events']:,} | {t['unsupported']:.3f} | "
                          + " | ".join(f"{x:.3f}" for x in t["unsupported_by_quintile"]) + " |")
         lines.append("")
     return "\n".join(lines)
