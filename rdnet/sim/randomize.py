@@ -4,7 +4,8 @@ RDNet trains the restoration stage on events simulated with varied real-sensor
 degradations; to measure generalisation, training and test sequences draw their
 degradation strengths from *disjoint* ranges around the ``degrade`` section:
 
-    value = base * m            (onoff_ratio: base ** m, i.e. scaled in log space)
+    value = base * m            (onoff_ratio: base ** m, i.e. scaled in log space;
+                                 cutoff_hz: base / m, i.e. its time constant scaled)
     m ~ U(train_scale)  for split "train",  m ~ U(test_scale)  for split "test"
 
 (a scale may be a union of ranges, drawn uniformly over the union: :func:`draw_scale`)
@@ -14,6 +15,14 @@ independently per key and per sequence. Only effects active in ``base`` are rand
 changes both splits around the new value. ``hot_pixel_fraction`` and ``threshold_sigma``
 are capped at 1 (their valid range), every other key at its bound
 (:data:`rdnet.sim.settings.DEGRADE_UPPER_BOUNDS`; ``onoff_ratio`` also below).
+
+For every key m = 0 is the ideal sensor and a larger m a stronger degradation. A bandwidth
+limit is stronger the *lower* its cutoff (its time constant 1 / (2 pi cutoff_hz) sets the
+lag), so its factor scales the time constant: m = 1.5 gives cutoff_hz / 1.5, and m -> 0 an
+infinite cutoff, the limit switched off (cutoff_hz = 0). Until 2026-11-29 the cutoff was
+scaled like the other keys (base * m), which gave the test split (m 1.0-1.5) a *weaker*
+bandwidth limit than the training split (m 0.5-0.9), and a training range reaching towards
+0 a lag growing without bound (docs/restoration.md, "The bandwidth limit's scale").
 """
 from __future__ import annotations
 
@@ -32,14 +41,19 @@ _CAPPED = {"hot_pixel_fraction": 1.0, "threshold_sigma": 1.0, **DEGRADE_UPPER_BO
 
 
 def scale_degrade(base: DegradeConfig, factors: dict[str, float]) -> DegradeConfig:
-    """``base`` with each key of ``factors`` scaled (``onoff_ratio`` in log space), capped at
-    the key's valid range."""
+    """``base`` with each key of ``factors`` scaled (``onoff_ratio`` in log space,
+    ``cutoff_hz`` inversely: module docstring), capped at the key's valid range."""
     new = {}
     for k, m in factors.items():
         if k not in EFFECT_KEYS:
             raise ConfigError(f"degrade.{k}", "not a degradation effect")
         v = getattr(base, k)
-        v = v ** m if k == "onoff_ratio" else v * m
+        if k == "onoff_ratio":
+            v = v ** m
+        elif k == "cutoff_hz":                   # the time constant scales: m = 0 is no limit (0 = off)
+            v = v / m if m > 0 else 0.0
+        else:
+            v = v * m
         v = min(v, _CAPPED[k]) if k in _CAPPED else v
         new[k] = max(v, DEGRADE_LOWER_BOUNDS[k]) if k in DEGRADE_LOWER_BOUNDS else v
     return dataclasses.replace(base, **new)
@@ -82,11 +96,17 @@ def draw_degrade(base: DegradeConfig, cfg: RandomizeConfig, split: str,
 
 
 def degrade_factors(d: DegradeConfig, base: DegradeConfig) -> dict[str, float]:
-    """Per active key of ``base``: the factor m with d = base * m (onoff_ratio: base ** m)."""
+    """Per active key of ``base``: the factor m with d = base * m (onoff_ratio: base ** m;
+    cutoff_hz: base / m, 0 when ``d`` has no bandwidth limit)."""
     out = {}
     for k in base.active():
         b, v = getattr(base, k), getattr(d, k)
-        out[k] = math.log(v) / math.log(b) if k == "onoff_ratio" else v / b
+        if k == "onoff_ratio":
+            out[k] = math.log(v) / math.log(b)
+        elif k == "cutoff_hz":
+            out[k] = b / v if v else 0.0
+        else:
+            out[k] = v / b
     return out
 
 

@@ -7,7 +7,7 @@ import pytest
 from rdnet.errors import ConfigError, ValidationError
 from rdnet.events.recording import Frames
 from rdnet.sim.pair import frame_chunks, simulate, simulate_pair
-from rdnet.sim.randomize import degradation_level, degrade_factors, draw_degrade, draw_scale
+from rdnet.sim.randomize import degradation_level, degrade_factors, draw_degrade, draw_scale, scale_degrade
 from rdnet.sim.settings import EFFECT_KEYS, DegradeConfig, RandomizeConfig, SensorConfig
 
 DEG = DegradeConfig(threshold_sigma=0.1, onoff_ratio=1.3, cutoff_hz=300, sample_period_us=200,
@@ -96,13 +96,31 @@ def test_train_and_test_degradations_are_disjoint_for_every_key():
     for k in DEG.active():
         a = np.array([getattr(d, k) for d in train])
         b = np.array([getattr(d, k) for d in test])
-        assert a.max() < b.min(), k
+        if k == "cutoff_hz":                         # a lower cutoff is the stronger limit
+            assert a.min() > b.max(), k
+        else:
+            assert a.max() < b.min(), k
         assert np.unique(a).size > 100               # drawn per sequence
     lv_train = [degradation_level(d, DEG) for d in train]
     lv_test = [degradation_level(d, DEG) for d in test]
     assert max(lv_train) < min(lv_test)
     assert degradation_level(DEG, DEG) == pytest.approx(1.0)
     assert degradation_level(DegradeConfig(), DEG) == 0.0
+
+
+def test_scale_makes_every_key_stronger_and_round_trips():
+    # m = 0 is the ideal sensor, a larger m a stronger degradation, for every key; the
+    # bandwidth limit's strength is its time constant, so its cutoff is divided by m
+    s = scale_degrade(DEG, {"cutoff_hz": 2.0, "refractory_us": 2.0, "onoff_ratio": 2.0})
+    assert s.cutoff_hz == pytest.approx(DEG.cutoff_hz / 2)
+    assert s.refractory_us == pytest.approx(DEG.refractory_us * 2)
+    assert s.onoff_ratio == pytest.approx(DEG.onoff_ratio ** 2)
+    off = scale_degrade(DEG, {k: 0.0 for k in DEG.active()})
+    assert off.is_ideal
+    factors = {k: 0.5 + 0.1 * i for i, k in enumerate(DEG.active())}
+    back = degrade_factors(scale_degrade(DEG, factors), DEG)
+    assert back == pytest.approx(factors)
+    assert degrade_factors(off, DEG) == {k: 0.0 for k in DEG.active()}
 
 
 def test_randomize_details():
