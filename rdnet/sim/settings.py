@@ -193,7 +193,9 @@ class RandomizeConfig:
     Each randomized key of the ``degrade`` section that is active is multiplied by a
     factor drawn uniformly from ``train_scale`` (training sequences) or ``test_scale``
     (test sequences), independently per key and per sequence; ``onoff_ratio`` is scaled
-    in log space (r -> r ** factor). A scale is one range ``[lo, hi]`` or a union of
+    in log space (r -> r ** factor) and ``cutoff_hz`` inversely (c -> c / factor: the
+    bandwidth limit's time constant scales, so a larger factor is a stronger limit as for
+    every other key; :mod:`rdnet.sim.randomize`). A scale is one range ``[lo, hi]`` or a union of
     ranges ``[[lo, hi], ...]`` (drawn uniformly over the union: a range is picked with
     probability proportional to its length). Every training range must be disjoint from
     every test range, so test degradations are never seen in training; a union lets the
