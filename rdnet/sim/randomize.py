@@ -32,12 +32,20 @@ import math
 import numpy as np
 
 from rdnet.errors import ConfigError
-from rdnet.sim.settings import (DEGRADE_LOWER_BOUNDS, DEGRADE_UPPER_BOUNDS, EFFECT_KEYS, DegradeConfig,
+from rdnet.sim.settings import (DEGRADE_LOWER_BOUNDS, DEGRADE_UPPER_BOUNDS, EFFECT_KEYS, EFFECT_SCALING, DegradeConfig,
                                 RandomizeConfig)
 
 __all__ = ["RandomizeConfig", "draw_degrade", "draw_scale", "scale_degrade", "degradation_level", "degrade_factors"]
 
 _CAPPED = {"hot_pixel_fraction": 1.0, "threshold_sigma": 1.0, **DEGRADE_UPPER_BOUNDS}
+
+#: per kind of :data:`rdnet.sim.settings.EFFECT_SCALING`: (value scaled by m, the m that turns
+#: ``base`` into ``value``)
+_SCALE = {
+    "linear": (lambda v, m: v * m, lambda base, v: v / base),
+    "log": (lambda v, m: v ** m, lambda base, v: math.log(v) / math.log(base)),
+    "inverse": (lambda v, m: v / m if m > 0 else 0.0, lambda base, v: base / v if v else 0.0),
+}
 
 
 def scale_degrade(base: DegradeConfig, factors: dict[str, float]) -> DegradeConfig:
@@ -47,13 +55,7 @@ def scale_degrade(base: DegradeConfig, factors: dict[str, float]) -> DegradeConf
     for k, m in factors.items():
         if k not in EFFECT_KEYS:
             raise ConfigError(f"degrade.{k}", "not a degradation effect")
-        v = getattr(base, k)
-        if k == "onoff_ratio":
-            v = v ** m
-        elif k == "cutoff_hz":                   # the time constant scales: m = 0 is no limit (0 = off)
-            v = v / m if m > 0 else 0.0
-        else:
-            v = v * m
+        v = _SCALE[EFFECT_SCALING[k]][0](getattr(base, k), m)
         v = min(v, _CAPPED[k]) if k in _CAPPED else v
         new[k] = max(v, DEGRADE_LOWER_BOUNDS[k]) if k in DEGRADE_LOWER_BOUNDS else v
     return dataclasses.replace(base, **new)
@@ -98,16 +100,7 @@ def draw_degrade(base: DegradeConfig, cfg: RandomizeConfig, split: str,
 def degrade_factors(d: DegradeConfig, base: DegradeConfig) -> dict[str, float]:
     """Per active key of ``base``: the factor m with d = base * m (onoff_ratio: base ** m;
     cutoff_hz: base / m, 0 when ``d`` has no bandwidth limit)."""
-    out = {}
-    for k in base.active():
-        b, v = getattr(base, k), getattr(d, k)
-        if k == "onoff_ratio":
-            out[k] = math.log(v) / math.log(b)
-        elif k == "cutoff_hz":
-            out[k] = b / v if v else 0.0
-        else:
-            out[k] = v / b
-    return out
+    return {k: _SCALE[EFFECT_SCALING[k]][1](getattr(base, k), getattr(d, k)) for k in base.active()}
 
 
 def degradation_level(d: DegradeConfig, base: DegradeConfig) -> float:

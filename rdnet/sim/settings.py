@@ -51,6 +51,15 @@ EFFECT_KEYS: tuple[str, ...] = (
     "threshold_sigma", "onoff_ratio", "cutoff_hz", "sample_period_us", "refractory_us",
     "shot_noise_hz", "leak_hz", "hot_pixel_fraction", "hot_pixel_hz", "jitter_us", "latency_us")
 
+#: How each effect's strength follows its value, so that a factor m means the same for every
+#: key (:mod:`rdnet.sim.randomize`: m = 0 the ideal sensor, a larger m a stronger effect):
+#: ``linear`` (off at 0, stronger as it grows: value x m), ``log`` (``onoff_ratio``: off at 1,
+#: stronger as its log grows: value ** m), ``inverse`` (``cutoff_hz``: off at 0, a *lower*
+#: nonzero cutoff is the stronger bandwidth limit, its time constant 1 / (2 pi cutoff) the lag:
+#: value / m). The calibration's search knows the same direction
+#: (:class:`rdnet.calib.effects.Param` ``weak``; a test keeps the two in step).
+EFFECT_SCALING: dict[str, str] = {**{k: "linear" for k in EFFECT_KEYS}, "onoff_ratio": "log", "cutoff_hz": "inverse"}
+
 #: bounds of the ``degrade`` keys (checked by :func:`rdnet.config.check_bounds`; the fractions
 #: ``threshold_sigma``, ``hot_pixel_fraction`` and ``hot_pixel_on_fraction`` are at most 1), far
 #: beyond any real sensor's values and short of where the simulation overflowed, ran until
@@ -195,7 +204,7 @@ class RandomizeConfig:
     (test sequences), independently per key and per sequence; ``onoff_ratio`` is scaled
     in log space (r -> r ** factor) and ``cutoff_hz`` inversely (c -> c / factor: the
     bandwidth limit's time constant scales, so a larger factor is a stronger limit as for
-    every other key; :mod:`rdnet.sim.randomize`). A scale is one range ``[lo, hi]`` or a union of
+    every other key; :data:`EFFECT_SCALING`). A scale is one range ``[lo, hi]`` or a union of
     ranges ``[[lo, hi], ...]`` (drawn uniformly over the union: a range is picked with
     probability proportional to its length). Every training range must be disjoint from
     every test range, so test degradations are never seen in training; a union lets the

@@ -8,7 +8,7 @@ from rdnet.errors import ConfigError, ValidationError
 from rdnet.events.recording import Frames
 from rdnet.sim.pair import frame_chunks, simulate, simulate_pair
 from rdnet.sim.randomize import degradation_level, degrade_factors, draw_degrade, draw_scale, scale_degrade
-from rdnet.sim.settings import EFFECT_KEYS, DegradeConfig, RandomizeConfig, SensorConfig
+from rdnet.sim.settings import EFFECT_KEYS, EFFECT_SCALING, DegradeConfig, RandomizeConfig, SensorConfig
 
 DEG = DegradeConfig(threshold_sigma=0.1, onoff_ratio=1.3, cutoff_hz=300, sample_period_us=200,
                     refractory_us=100, shot_noise_hz=5, leak_hz=1, hot_pixel_fraction=0.01,
@@ -121,6 +121,17 @@ def test_scale_makes_every_key_stronger_and_round_trips():
     back = degrade_factors(scale_degrade(DEG, factors), DEG)
     assert back == pytest.approx(factors)
     assert degrade_factors(off, DEG) == {k: 0.0 for k in DEG.active()}
+
+
+def test_effect_scaling_agrees_with_the_calibrations_search_direction():
+    # one notion of "stronger" per degrade key: the calibration searches each parameter from
+    # its weak end, which must be the end a factor m -> 0 moves the value towards
+    from rdnet.calib.effects import EFFECTS
+    weak_end = {"linear": "lo", "log": "off", "inverse": "hi"}
+    keys = [p for e in EFFECTS.values() for p in e.params if p.key in EFFECT_SCALING]
+    assert {p.key for p in keys} == set(EFFECT_KEYS)
+    for p in keys:
+        assert p.weak == weak_end[EFFECT_SCALING[p.key]], p.key
 
 
 def test_randomize_details():
