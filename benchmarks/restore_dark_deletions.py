@@ -249,17 +249,15 @@ def table(res: dict) -> str:
                          f"{r['consistency_other_deletions_undone']:.4f} | {r['consistency_raw_minus_dark_deletions']:.4f} | "
                          f"{r['consistency_raw_minus_other_deletions']:.4f} |")
     lines += ["", f"BAF with its dark deletions only: {b['consistency_dark_deletions_only']:.4f}.", ""]
-    if res.get("variants"):
-        lines += ["What each variant's training pairs teach: the share of the degraded events in voxels with no "
+    pairs = {f"{name} (training pairs)": v["training_pairs"] for name, v in res.get("variants", {}).items()}
+    pairs.update({f"test split, {name}": t for name, t in res.get("independent", {}).items()})
+    if pairs:
+        lines += ["What the simulated pairs teach: the share of the degraded events in voxels with no "
                   "undegraded event, by quintile of the blurry image's grey level at their pixel:", "",
-                  "| variant | degraded events | unsupported | " + " | ".join(f"quintile {b + 1}" for b in range(QUINTILES)) + " |",
+                  "| pairs | degraded events | unsupported | " + " | ".join(f"quintile {b + 1}" for b in range(QUINTILES)) + " |",
                   "|---|---:|---:|" + "---:|" * QUINTILES]
-        for name, v in res["variants"].items():
-            t = v["training_pairs"]
+        for name, t in pairs.items():
             lines.append(f"| {name} | {t['degraded_events']:,} | {t['unsupported']:.3f} | "
-                         + " | ".join(f"{x:.3f}" for x in t["unsupported_by_quintile"]) + " |")
-        for name, t in res.get("independent", {}).items():
-            lines.append(f"| test split, {name} | {t['degraded_events']:,} | {t['unsupported']:.3f} | "
                          + " | ".join(f"{x:.3f}" for x in t["unsupported_by_quintile"]) + " |")
         lines.append("")
     return "\n".join(lines)

@@ -138,12 +138,35 @@ SUMMARY = {"dvxplorer_person": [("person kept at 15 % background (the goal's cor
                               "same event count", "kept_fraction", "consistency_r2", None)]}
 
 
+def margins(curves: dict, xk: str, yk: str) -> dict:
+    """Per restorer threshold curve and filter: its ``yk`` minus the filter curve's at the same
+    ``xk`` (linear between the filter's points), over the restorer points inside the filter's
+    range: ``{(label, filter): (min, max, points compared, points)}``."""
+    out = {}
+    for label, pts in curves.items():
+        if not label.startswith("rdnet") or label == "rdnet window":
+            continue
+        for f in ("baf", "stcf"):
+            if f not in curves:
+                continue
+            d = [q[yk] - y for q in pts if q[xk] is not None and q[yk] is not None
+                 for y in [at(curves[f], xk, yk, q[xk])] if y is not None]
+            out[(label, f)] = (min(d) if d else None, max(d) if d else None, len(d), len(pts))
+    return out
+
+
 def summary(name: str, r: dict) -> list[str]:
     """Lines reading every curve at the recording's :data:`SUMMARY` points."""
     def fmt(v):
         return "-" if v is None else f"{v:.3f}"
     lines = []
     curves = {k: v for k, v in r["curves"].items() if k not in ("raw", "rdnet window")}
+    if name in AXES:
+        (xk, _), (yk, _) = AXES[name]
+        lines.append(f"- each restorer curve's {yk} minus the filter's at the same {xk} (min to max over its "
+                     "points inside the filter's range; points compared of all):")
+        for (label, f), (lo, hi, n, total) in margins(curves, xk, yk).items():
+            lines.append(f"  - {label} vs {f}: {fmt(lo)} to {fmt(hi)} ({n} of {total})")
     for what, xk, yk, x in SUMMARY.get(name, []):
         if x is not None:
             lines.append(f"- {what} ({xk} = {x:.3f}): "
