@@ -85,15 +85,21 @@ def draw_degrade(base: DegradeConfig, cfg: RandomizeConfig, split: str,
 
     One factor is drawn for every key of :data:`EFFECT_KEYS` in order (so the draws of a
     key do not depend on which other keys are active); it is applied to the keys that are
-    randomized (``cfg.keys``, default all) and active in ``base``."""
+    randomized (``cfg.keys``, default all) and active in ``base``. In the training split a
+    key with a scale of its own (``cfg.train_scale_keys``) then draws once more, from that
+    scale, in :data:`EFFECT_KEYS` order, and that factor replaces its shared one."""
     if split not in ("train", "test"):
         raise ConfigError("split", f"must be 'train' or 'test', got {split!r}")
     if not cfg.enabled:
         return base
     draws = draw_scale(cfg.train_ranges if split == "train" else cfg.test_ranges, len(EFFECT_KEYS), rng)
+    m = dict(zip(EFFECT_KEYS, draws))
+    if split == "train":
+        for k in (k for k in EFFECT_KEYS if k in cfg.train_scale_keys):
+            m[k] = draw_scale(cfg.train_ranges_of(k), 1, rng)[0]
     keys = set(cfg.keys) if cfg.keys else set(EFFECT_KEYS)
     active = set(base.active())
-    factors = {k: float(m) for k, m in zip(EFFECT_KEYS, draws) if k in keys and k in active}
+    factors = {k: float(m[k]) for k in EFFECT_KEYS if k in keys and k in active}
     return scale_degrade(base, factors)
 
 

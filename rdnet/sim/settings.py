@@ -5,8 +5,8 @@ Zero (or ``onoff_ratio = 1``) turns a degradation off; the equations live in
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
-from typing import Any, Tuple
+from dataclasses import dataclass, field, fields
+from typing import Any, Mapping, Tuple
 
 from rdnet.config import MAX_RATE_HZ, ONE_HOUR_US, check_bounds, positive
 from rdnet.errors import ConfigError
@@ -210,45 +210,51 @@ class RandomizeConfig:
     every test range, so test degradations are never seen in training; a union lets the
     training draws bracket the test range (``[[0.5, 0.9], [1.6, 2.0]]`` around a test
     range ``[1.0, 1.5]``) instead of lying all on one side of it. ``keys``: the keys to
-    randomize (empty = all active effects of :data:`EFFECT_KEYS`). ``enabled: false``
-    uses ``degrade`` unchanged for both splits (ranges then unchecked).
+    randomize (empty = all active effects of :data:`EFFECT_KEYS`). ``train_scale_keys``:
+    a training scale of its own for some keys (``{cutoff_hz: [0.5, 0.9]}`` keeps the
+    bandwidth limit's training draws on one side of the test range while ``train_scale``
+    brackets it for the others); each is disjoint from ``test_scale`` too, and is drawn
+    after the shared draws, so a config without it draws exactly as before. ``enabled:
+    false`` uses ``degrade`` unchanged for both splits (ranges then unchecked).
     """
 
     enabled: bool = True
     train_scale: Any = (0.5, 0.9)      # Range or tuple of Ranges (validated below)
     test_scale: Any = (1.0, 1.5)
     keys: Tuple[str, ...] = ()
+    train_scale_keys: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self):
         for name in ("train_scale", "test_scale"):
-            key = f"randomize.{name}"
-            value = getattr(self, name)
-            shape = f"expected [lo, hi] or [[lo, hi], ...], got {value!r}"
-            if not isinstance(value, (tuple, list)) or not value:
-                raise ConfigError(key, shape)
-            nested = isinstance(value[0], (tuple, list))
-            for rng in (value if nested else (value,)):
-                if not isinstance(rng, (tuple, list)) or len(rng) != 2 or not all(
-                        isinstance(v, (int, float)) and not isinstance(v, bool) for v in rng):
-                    raise ConfigError(key, shape)
-                lo, hi = rng
-                positive(key, lo, allow_zero=True)
-                if not lo <= hi or hi == float("inf"):
-                    raise ConfigError(key, f"expected finite lo <= hi, got {list(rng)}")
-            ranges = scale_ranges(value)
-            object.__setattr__(self, name, ranges if nested else ranges[0])
+            object.__setattr__(self, name, _checked_scale(f"randomize.{name}", getattr(self, name)))
         check_bounds("randomize", self, RANDOMIZE_UPPER_BOUNDS)
         object.__setattr__(self, "keys", tuple(self.keys))
         for k in self.keys:
             if k not in EFFECT_KEYS:
                 raise ConfigError("randomize.keys", f"unknown degrade key {k!r}; known: {', '.join(EFFECT_KEYS)}")
+        own = self.train_scale_keys
+        if not isinstance(own, Mapping):
+            raise ConfigError("randomize.train_scale_keys", f"expected a mapping of degrade keys to scales, got {own!r}")
+        checked = {}
+        for k, v in own.items():
+            if k not in EFFECT_KEYS:
+                raise ConfigError("randomize.train_scale_keys",
+                                  f"unknown degrade key {k!r}; known: {', '.join(EFFECT_KEYS)}")
+            checked[k] = _checked_scale(f"randomize.train_scale_keys.{k}", v)
+            for lo, hi in scale_ranges(checked[k]):
+                if hi > RANDOMIZE_UPPER_BOUNDS["train_scale"]:
+                    raise ConfigError(f"randomize.train_scale_keys.{k}",
+                                      f"must be <= {RANDOMIZE_UPPER_BOUNDS['train_scale']}, got {hi}")
+        object.__setattr__(self, "train_scale_keys", checked)
         if self.enabled:
-            for a0, a1 in self.train_ranges:
-                for b0, b1 in self.test_ranges:
-                    if not (a1 < b0 or b1 < a0):
-                        raise ConfigError("randomize.test_scale",
-                                          f"train_scale {_show(self.train_scale)} and test_scale "
-                                          f"{_show(self.test_scale)} must be disjoint")
+            for name, train in (("train_scale", self.train_scale),
+                                *((f"train_scale_keys.{k}", v) for k, v in checked.items())):
+                for a0, a1 in scale_ranges(train):
+                    for b0, b1 in self.test_ranges:
+                        if not (a1 < b0 or b1 < a0):
+                            raise ConfigError("randomize.test_scale",
+                                              f"{name} {_show(train)} and test_scale "
+                                              f"{_show(self.test_scale)} must be disjoint")
 
     @property
     def train_ranges(self) -> tuple[Range, ...]:
@@ -259,6 +265,31 @@ class RandomizeConfig:
     def test_ranges(self) -> tuple[Range, ...]:
         """``test_scale`` as a tuple of (lo, hi) ranges."""
         return scale_ranges(self.test_scale)
+
+    def train_ranges_of(self, key: str) -> tuple[Range, ...]:
+        """The training ranges of one degrade key: its own (``train_scale_keys``) or the
+        shared ``train_scale``."""
+        own = self.train_scale_keys.get(key)
+        return scale_ranges(own) if own is not None else self.train_ranges
+
+
+def _checked_scale(key: str, value):
+    """A ``randomize`` scale (``[lo, hi]`` or ``[[lo, hi], ...]``) validated, as tuples;
+    ConfigError naming ``key`` otherwise."""
+    shape = f"expected [lo, hi] or [[lo, hi], ...], got {value!r}"
+    if not isinstance(value, (tuple, list)) or not value:
+        raise ConfigError(key, shape)
+    nested = isinstance(value[0], (tuple, list))
+    for rng in (value if nested else (value,)):
+        if not isinstance(rng, (tuple, list)) or len(rng) != 2 or not all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in rng):
+            raise ConfigError(key, shape)
+        lo, hi = rng
+        positive(key, lo, allow_zero=True)
+        if not lo <= hi or hi == float("inf"):
+            raise ConfigError(key, f"expected finite lo <= hi, got {list(rng)}")
+    ranges = scale_ranges(value)
+    return ranges if nested else ranges[0]
 
 
 def _show(value) -> list:

@@ -108,6 +108,33 @@ def test_train_and_test_degradations_are_disjoint_for_every_key():
     assert degradation_level(DegradeConfig(), DEG) == 0.0
 
 
+def test_a_key_with_a_training_scale_of_its_own():
+    # train_scale brackets the test range for every key but the bandwidth limit, whose own
+    # training scale stays on one side of it; every other draw is the shared config's, bit
+    # for bit, and the test split is untouched
+    bracket = [[0.5, 0.9], [1.6, 2.0]]
+    own = RandomizeConfig(train_scale=bracket, train_scale_keys={"cutoff_hz": [0.5, 0.9]})
+    shared = RandomizeConfig(train_scale=bracket)
+    assert own.train_ranges_of("cutoff_hz") == ((0.5, 0.9),) and own.train_ranges_of("leak_hz") == ((0.5, 0.9), (1.6, 2.0))
+    a, b = _draws("train", cfg=own), _draws("train", cfg=shared)
+    m_own = np.array([degrade_factors(d, DEG)["cutoff_hz"] for d in a])
+    m_shared = np.array([degrade_factors(d, DEG)["cutoff_hz"] for d in b])
+    assert m_own.min() >= 0.5 - 1e-9 and m_own.max() <= 0.9 + 1e-9
+    assert (m_shared > 1.5).any()                                # the shared scale would bracket it
+    for seed in range(50):        # one sequence's other keys: the shared draws (the own draw comes after)
+        x, y = (draw_degrade(DEG, c, "train", np.random.default_rng(seed)) for c in (own, shared))
+        assert dataclasses.replace(x, cutoff_hz=0.0) == dataclasses.replace(y, cutoff_hz=0.0)
+    assert _draws("test", cfg=own) == _draws("test", cfg=shared)
+    with pytest.raises(ConfigError, match="train_scale_keys.cutoff_hz.*disjoint"):
+        RandomizeConfig(train_scale_keys={"cutoff_hz": [0.5, 1.2]})
+    with pytest.raises(ConfigError, match="randomize.train_scale_keys.*unknown degrade key 'bogus'"):
+        RandomizeConfig(train_scale_keys={"bogus": [0.5, 0.9]})
+    with pytest.raises(ConfigError, match=r"randomize.train_scale_keys.leak_hz.*\[lo, hi\]"):
+        RandomizeConfig(train_scale_keys={"leak_hz": [0.5]})
+    with pytest.raises(ConfigError, match="randomize.train_scale_keys.*mapping"):
+        RandomizeConfig(train_scale_keys=[0.5, 0.9])
+
+
 def test_scale_makes_every_key_stronger_and_round_trips():
     # m = 0 is the ideal sensor, a larger m a stronger degradation, for every key; the
     # bandwidth limit's strength is its time constant, so its cutoff is divided by m
