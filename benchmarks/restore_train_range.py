@@ -10,11 +10,17 @@ test pairs (``data/pairs/test.h5``, unchanged) with the metrics of
 ``benchmarks/restore_learned_eval.py``: event precision / recall / F1 matched per voxel and
 polarity, count ratio, signed-voxel L1 over all voxels and over event voxels.
 
-Variants (``--variants``, NAME=SCALE with SCALE as JSON): ``study`` ([0.5, 0.9]), ``bracket``
+Variants (``--variants``, NAME=SCALE with SCALE as JSON: a ``train_scale``, or an object of
+``randomize`` keys such as ``{"train_scale": [[0.5, 0.9], [1.6, 2.0]], "train_scale_keys":
+{"cutoff_hz": [0.5, 0.9]}}``): ``study`` ([0.5, 0.9]), ``bracket``
 ([[0.5, 0.9], [1.6, 2.0]]: disjoint from the test range but on both sides of it), ``wide``
 ([[0.25, 0.9], [1.6, 3.0]]) and ``in_range`` ([1.0, 1.5]: the test range itself, *not* disjoint,
 a reference for what the network can do without extrapolating; not a protocol).
 ``--iterations-factor`` scales ``train.iterations`` (3 for a longer-training reference).
+``--work DIR`` keeps each variant's training pairs and networks, the networks as
+``DIR/<variant>/models/<restore_image|restore_events>/seed<k>/model.pt`` (the study's layout, so
+that ``benchmarks/restore_seeds_real.py --runs NAME=DIR/<variant>`` scores them on the real
+recordings), and reuses those already there.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/restore_train_range.py   # needs data/scenes, data/interp, data/pairs
         (dvc repro blur); writes benchmarks/results/restore_train_range.{json,md}
@@ -35,24 +41,27 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_VARIANTS = ["study=[0.5, 0.9]", "bracket=[[0.5, 0.9], [1.6, 2.0]]", "wide=[[0.25, 0.9], [1.6, 3.0]]",
                     "in_range=[1.0, 1.5]"]
+#: the study's model folder of each training task (dvc.yaml), which --work's layout follows
+STUDY_DIR = {"restore": "restore_image", "restore_events": "restore_events"}
 METRICS = ("precision", "recall", "f1", "count_ratio", "l1_all", "l1_events")
 log = logging.getLogger("restore_train_range")
 
 
 def simulate_train(params: dict, scale, work: Path) -> Path:
-    """The training pairs of ``params`` with ``randomize.train_scale = scale`` (only the
-    training split is simulated; a test range is set aside when ``scale`` overlaps the
-    study's, which only this reference variant does)."""
+    """The training pairs of ``params`` with ``randomize.train_scale = scale`` (or, when
+    ``scale`` is a dict, with those ``randomize`` keys: ``train_scale``, ``train_scale_keys``);
+    only the training split is simulated; a test range is set aside when the training range
+    overlaps the study's, which only the ``in_range`` reference variant does."""
     from rdnet.config import section
     from rdnet.errors import ConfigError
     from rdnet.sim.settings import scale_ranges
     from rdnet.study.data import make_pairs, simulate_sequences
 
-    rand = dict(params["randomize"], train_scale=scale)
+    rand = dict(params["randomize"], **(scale if isinstance(scale, dict) else {"train_scale": scale}))
     try:
         section({"randomize": rand}, "randomize")
     except ConfigError:                      # overlaps the test range: a reference run only
-        hi = max(b for _, b in scale_ranges(scale))
+        hi = max(b for _, b in scale_ranges(rand["train_scale"]))
         rand["test_scale"] = [hi + 1.0, hi + 2.0]
     p = {**params, "randomize": rand}
     events, pairs = work / "events", work / "pairs"
@@ -127,6 +136,8 @@ def main() -> None:
                          "median decision when the network is calibrated)")
     ap.add_argument("--parallel", type=int, default=2, help="trainings at once (1 thread each)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "restore_train_range.json")
+    ap.add_argument("--work", type=Path, default=None,
+                    help="keep (and reuse) the variants' pairs and networks here (module docstring)")
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT / "benchmarks"))
     import torch
@@ -145,16 +156,27 @@ def main() -> None:
     res = {"test_pairs": str(test.relative_to(ROOT)), "test_scale": params["randomize"]["test_scale"],
            "seeds": args.seeds, "load_average_1min_before": os.getloadavg()[0], "variants": {}}
     with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp) if args.work is None else args.work
         jobs = []
         for name, scale in variants.items():
-            work = Path(tmp) / name
-            log.info("simulating the training split of %s (train_scale %s)", name, scale)
-            pairs = simulate_train(params, scale, work)
+            work = root / name
+            pairs = work / "pairs" / "train.h5"
+            if not pairs.is_file():
+                log.info("simulating the training split of %s (train_scale %s)", name, scale)
+                pairs = simulate_train(params, scale, work)
             for task in args.tasks:
                 for seed in args.seeds:
-                    jobs.append((name, task, seed, pairs, work / f"{task}_seed{seed}"))
+                    jobs.append((name, task, seed, pairs, work / "models" / STUDY_DIR[task] / f"seed{seed}"))
+
+        def run(job):
+            name, task, seed, pairs, out = job
+            if (out / "model.pt").is_file():                      # kept by an earlier --work run
+                log.info("reusing %s", out / "model.pt")
+                return out / "model.pt", None
+            return train(task, pairs, out, seed, iterations)
+
         with ThreadPoolExecutor(max_workers=args.parallel) as pool:
-            done = list(pool.map(lambda j: train(j[1], j[3], j[4], j[2], iterations), jobs))
+            done = list(pool.map(run, jobs))
         ckpts = {f"{name}/{task}/{seed}": ck for (name, task, seed, _, _), (ck, _) in zip(jobs, done)}
         scored = eval_pairs(test, ckpts, args.also_threshold)
     res["raw"] = scored["raw"]
