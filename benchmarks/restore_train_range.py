@@ -20,7 +20,8 @@ a reference for what the network can do without extrapolating; not a protocol).
 ``--work DIR`` keeps each variant's training pairs and networks, the networks as
 ``DIR/<variant>/models/<restore_image|restore_events>/seed<k>/model.pt`` (the study's layout, so
 that ``benchmarks/restore_seeds_real.py --runs NAME=DIR/<variant>`` scores them on the real
-recordings), and reuses those already there.
+recordings), and reuses the pairs and networks already there, whatever they were made with
+(use one DIR per ``--iterations-factor``; a reused network's row records ``train_wall_s`` null).
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/restore_train_range.py   # needs data/scenes, data/interp, data/pairs
         (dvc repro blur); writes benchmarks/results/restore_train_range.{json,md}
