@@ -12,7 +12,8 @@ polarity, count ratio, signed-voxel L1 over all voxels and over event voxels.
 
 Variants (``--variants``, NAME=SCALE with SCALE as JSON: a ``train_scale``, or an object of
 ``randomize`` keys such as ``{"train_scale": [[0.5, 0.9], [1.6, 2.0]], "train_scale_keys":
-{"cutoff_hz": [0.5, 0.9]}}``): ``study`` ([0.5, 0.9]), ``bracket``
+{"cutoff_hz": [0.5, 0.9]}}``, whose ``degrade`` key, if any, overrides ``degrade`` keys for the
+training split alone, ``{"degrade": {"leak_spread_decades": 1.0}}``): ``study`` ([0.5, 0.9]), ``bracket``
 ([[0.5, 0.9], [1.6, 2.0]]: disjoint from the test range but on both sides of it), ``wide``
 ([[0.25, 0.9], [1.6, 3.0]]) and ``in_range`` ([1.0, 1.5]: the test range itself, *not* disjoint,
 a reference for what the network can do without extrapolating; not a protocol).
@@ -50,7 +51,8 @@ log = logging.getLogger("restore_train_range")
 
 def simulate_train(params: dict, scale, work: Path) -> Path:
     """The training pairs of ``params`` with ``randomize.train_scale = scale`` (or, when
-    ``scale`` is a dict, with those ``randomize`` keys: ``train_scale``, ``train_scale_keys``);
+    ``scale`` is a dict, with those ``randomize`` keys: ``train_scale``, ``train_scale_keys``,
+    and its ``degrade`` dict's keys in ``degrade``);
     only the training split is simulated; a test range is set aside when the training range
     overlaps the study's, which only the ``in_range`` reference variant does."""
     from rdnet.config import section
@@ -58,13 +60,15 @@ def simulate_train(params: dict, scale, work: Path) -> Path:
     from rdnet.sim.settings import scale_ranges
     from rdnet.study.data import make_pairs, simulate_sequences
 
-    rand = dict(params["randomize"], **(scale if isinstance(scale, dict) else {"train_scale": scale}))
+    spec = dict(scale) if isinstance(scale, dict) else {"train_scale": scale}
+    degrade = spec.pop("degrade", {})                # training-split degrade keys (the test pairs stay)
+    rand = dict(params["randomize"], **spec)
     try:
         section({"randomize": rand}, "randomize")
     except ConfigError:                      # overlaps the test range: a reference run only
         hi = max(b for _, b in scale_ranges(rand["train_scale"]))
         rand["test_scale"] = [hi + 1.0, hi + 2.0]
-    p = {**params, "randomize": rand}
+    p = {**params, "randomize": rand, "degrade": {**params["degrade"], **degrade}}
     events, pairs = work / "events", work / "pairs"
     simulate_sequences(p, ROOT / "data" / "scenes", ROOT / "data" / "interp", events, splits=("train",))
     make_pairs(p, events, pairs, splits=("train",))
