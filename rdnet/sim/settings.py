@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import Any, Mapping, Tuple
 
-from rdnet.config import MAX_RATE_HZ, ONE_HOUR_US, check_bounds, positive
+from rdnet.config import MAX_RATE_HZ, ONE_HOUR_US, at_most, check_bounds, positive
 from rdnet.errors import ConfigError
 
 #: bounds of the ``sensor`` keys, in log units (checked by :func:`rdnet.config.check_bounds`)
@@ -241,10 +241,8 @@ class RandomizeConfig:
                 raise ConfigError("randomize.train_scale_keys",
                                   f"unknown degrade key {k!r}; known: {', '.join(EFFECT_KEYS)}")
             checked[k] = _checked_scale(f"randomize.train_scale_keys.{k}", v)
-            for lo, hi in scale_ranges(checked[k]):
-                if hi > RANDOMIZE_UPPER_BOUNDS["train_scale"]:
-                    raise ConfigError(f"randomize.train_scale_keys.{k}",
-                                      f"must be <= {RANDOMIZE_UPPER_BOUNDS['train_scale']}, got {hi}")
+            for _, hi in scale_ranges(checked[k]):
+                at_most(f"randomize.train_scale_keys.{k}", hi, RANDOMIZE_UPPER_BOUNDS["train_scale"])
         object.__setattr__(self, "train_scale_keys", checked)
         if self.enabled:
             for name, train in (("train_scale", self.train_scale),
