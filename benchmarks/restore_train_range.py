@@ -18,6 +18,9 @@ training split alone, ``{"degrade": {"leak_spread_decades": 1.0}}``): ``study`` 
 ([[0.25, 0.9], [1.6, 3.0]]) and ``in_range`` ([1.0, 1.5]: the test range itself, *not* disjoint,
 a reference for what the network can do without extrapolating; not a protocol).
 ``--iterations-factor`` scales ``train.iterations`` (3 for a longer-training reference).
+``--circuit`` also scores every network on the test sequences rendered by the independent
+circuit generator (:func:`rdnet.study.independent.circuit_pairs`, one draw), so that a finding
+on the test split does not rest on rdnet's simulator alone.
 ``--work DIR`` keeps each variant's training pairs and networks, the networks as
 ``DIR/<variant>/models/<restore_image|restore_events>/seed<k>/model.pt`` (the study's layout, so
 that ``benchmarks/restore_seeds_real.py --runs NAME=DIR/<variant>`` scores them on the real
@@ -97,6 +100,22 @@ def train(task: str, pairs: Path, out: Path, seed: int, iterations: int, overrid
     return out / "model.pt", time.perf_counter() - t
 
 
+def circuit_table(res: dict) -> str:
+    """The runs scored on the circuit generator's rendering (``--circuit``), or nothing."""
+    if "raw_circuit" not in res:
+        return ""
+    keys = ("f1", "count_ratio", "l1_all")
+    lines = ["", "Scored on the same test sequences rendered by the independent circuit generator (one draw):", "",
+             "| variant | task, seed | " + " | ".join(keys) + " |", "|---|---|" + "---:|" * len(keys),
+             "| raw degraded events | - | " + " | ".join(f"{res['raw_circuit'][m]:.3f}" for m in keys) + " |"]
+    for name, v in res["variants"].items():
+        for run in v["runs"]:
+            if "test_circuit" in run:
+                lines.append(f"| {name} | {run['task']}, {run['seed']} | "
+                             + " | ".join(f"{run['test_circuit'][m]:.3f}" for m in keys) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def table(res: dict) -> str:
     lines = ["| variant | train_scale | task, seed | iterations | " + " | ".join(METRICS) + " |",
              "|---|---|---|---:|" + "---:|" * len(METRICS)]
@@ -109,7 +128,7 @@ def table(res: dict) -> str:
             for t, at in run.get("at_threshold", {}).items():
                 lines.append(f"| {name}, occupancy threshold {t} (not fitted) | {json.dumps(v['train_scale'])} | "
                              f"{run['task']}, {run['seed']} | {run['iterations']} | " + " | ".join(f"{at[m]:.3f}" for m in METRICS) + " |")
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines) + "\n" + circuit_table(res)
 
 
 def rewrite_table(out: Path, render) -> None:
@@ -141,6 +160,9 @@ def main() -> None:
                          "median decision when the network is calibrated)")
     ap.add_argument("--parallel", type=int, default=2, help="trainings at once (1 thread each)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "restore_train_range.json")
+    ap.add_argument("--circuit", action="store_true",
+                    help="also score every network on the test sequences rendered by the independent circuit "
+                         "generator (one draw, as stage restoration_circuit)")
     ap.add_argument("--work", type=Path, default=None,
                     help="keep (and reuse) the variants' pairs and networks here (module docstring)")
     args = ap.parse_args()
@@ -184,6 +206,13 @@ def main() -> None:
             done = list(pool.map(run, jobs))
         ckpts = {f"{name}/{task}/{seed}": ck for (name, task, seed, _, _), (ck, _) in zip(jobs, done)}
         scored = eval_pairs(test, ckpts, args.also_threshold)
+        circuit = None
+        if args.circuit:              # the same test sequences from the independent generator
+            from rdnet.study.data import sequences
+            from rdnet.study.independent import circuit_pairs
+            pairs_c, _ = circuit_pairs(params, sequences(ROOT / "data" / "events", "test"), Path(tmp) / "circuit", 0)
+            circuit = eval_pairs(pairs_c, ckpts)
+            res["raw_circuit"] = {m: circuit["raw"][m] for m in METRICS}
     res["raw"] = scored["raw"]
     for (name, task, seed, _, _), (ck, wall) in zip(jobs, done):
         s = scored[f"{name}/{task}/{seed}"]
@@ -193,6 +222,8 @@ def main() -> None:
                           "val_metrics": s["val_metrics"],
                           "at_threshold": {str(t): {m: scored[f"{name}/{task}/{seed}@{t}"][m] for m in METRICS}
                                            for t in args.also_threshold}})
+        if circuit is not None:
+            v["runs"][-1]["test_circuit"] = {m: circuit[f"{name}/{task}/{seed}"][m] for m in METRICS}
     write_results(args.out, res, table)
 
 
