@@ -230,16 +230,16 @@ class RandomizeConfig:
         check_bounds("randomize", self, RANDOMIZE_UPPER_BOUNDS)
         object.__setattr__(self, "keys", tuple(self.keys))
         for k in self.keys:
-            if k not in EFFECT_KEYS:
-                raise ConfigError("randomize.keys", f"unknown degrade key {k!r}; known: {', '.join(EFFECT_KEYS)}")
+            _effect_key("randomize.keys", k)
         own = self.train_scale_keys
         if not isinstance(own, Mapping):
             raise ConfigError("randomize.train_scale_keys", f"expected a mapping of degrade keys to scales, got {own!r}")
         checked = {}
         for k, v in own.items():
-            if k not in EFFECT_KEYS:
-                raise ConfigError("randomize.train_scale_keys",
-                                  f"unknown degrade key {k!r}; known: {', '.join(EFFECT_KEYS)}")
+            _effect_key("randomize.train_scale_keys", k)
+            if self.keys and k not in self.keys:       # it would stay at its degrade value in both splits
+                raise ConfigError("randomize.train_scale_keys", f"{k!r} is not randomized (randomize.keys: "
+                                  f"{', '.join(self.keys)})")
             checked[k] = _checked_scale(f"randomize.train_scale_keys.{k}", v)
             for _, hi in scale_ranges(checked[k]):
                 at_most(f"randomize.train_scale_keys.{k}", hi, RANDOMIZE_UPPER_BOUNDS["train_scale"])
@@ -269,6 +269,12 @@ class RandomizeConfig:
         shared ``train_scale``."""
         own = self.train_scale_keys.get(key)
         return scale_ranges(own) if own is not None else self.train_ranges
+
+
+def _effect_key(field_: str, key: str) -> None:
+    """ConfigError naming ``field_`` unless ``key`` is one of :data:`EFFECT_KEYS`."""
+    if key not in EFFECT_KEYS:
+        raise ConfigError(field_, f"unknown degrade key {key!r}; known: {', '.join(EFFECT_KEYS)}")
 
 
 def _checked_scale(key: str, value):

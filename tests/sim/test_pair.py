@@ -133,6 +133,8 @@ def test_a_key_with_a_training_scale_of_its_own():
         RandomizeConfig(train_scale_keys={"leak_hz": [0.5]})
     with pytest.raises(ConfigError, match=r"'randomize.train_scale_keys.leak_hz': must be at most 100"):
         RandomizeConfig(train_scale_keys={"leak_hz": [[0.5, 0.9], [2.0, 1e300]]})
+    with pytest.raises(ConfigError, match="randomize.train_scale_keys.*'leak_hz' is not randomized"):
+        RandomizeConfig(keys=("cutoff_hz",), train_scale_keys={"leak_hz": [0.5, 0.9]})
     with pytest.raises(ConfigError, match="randomize.train_scale_keys.*mapping"):
         RandomizeConfig(train_scale_keys=[0.5, 0.9])
 
