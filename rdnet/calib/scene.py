@@ -1,7 +1,16 @@
 """A small procedural scene for testing the calibration: a smooth random texture that
 moves (steady drift with pauses, or back and forth) under an illumination with a dark
-and a bright half, above a static textured band. Rendered analytically (subpixel shifts
-by linear interpolation of a periodic texture), so frames can be drawn at any rate."""
+and a bright half, above a static textured band. Rendered analytically, so frames can be
+drawn at any rate: the periodic texture is a band-limited function (the trigonometric
+interpolant of its samples, its Nyquist term dropped) and each frame samples it shifted
+exactly (a phase ramp on its Fourier series along x). A translating scene then looks the
+same at every subpixel phase, as it does through a lens, which band-limits the image
+before the pixels sample it. Sampling a piecewise-linear interpolant of the texture
+instead (the renderer before 2026-11-30) blurs each frame by an amount that follows the
+phase of its shift, a flicker of the texture's contrast that no camera records and that
+frames rendered 4x denser (the oversample4 and circuit truths of the proof) show between
+the recorded frames, where no interpolation of the recorded frames can predict it
+(docs/calibration.md, "A band-limited proof scene")."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -80,20 +89,29 @@ def render(spec: SceneSpec, rng: np.random.Generator, fps_hz: float | None = Non
     t_us = np.rint((np.arange(n) - n_pre) * 1e6 / fps).astype(np.int64)
     if texture is None:
         texture = draw_texture(spec, rng)
-    TW = texture.shape[1]
     gain = np.ones((H, W), np.float32)
     gain[:, : W // 2] = spec.dark_gain
     rows_static = int(round(spec.static_fraction * H))
-    cols = np.arange(W, dtype=np.float64)
     off = position(spec, t_us * 1e-6)
     frames = np.empty((n, H, W), np.float32)
-    for i, o in enumerate(off):
-        u = np.mod(cols - o, TW)
-        j = np.floor(u)
-        f = (u - j).astype(np.float32)
-        j0 = j.astype(np.int64) % TW          # u can round up to TW itself
-        j1 = (j0 + 1) % TW
-        img = texture[:, j0] * (1 - f) + texture[:, j1] * f
+    for i, img in enumerate(shifted_texture(texture, off, W)):
         img[:rows_static] = texture[:rows_static, :W]
         frames[i] = img * gain
     return Frames(frames, t_us, np.zeros(n, np.int64)), texture
+
+
+def shifted_texture(texture: np.ndarray, offsets_px: np.ndarray, width: int):
+    """The first ``width`` columns of the periodic ``texture`` (H, TW) shifted right by each
+    of ``offsets_px`` (float pixels), one float32 (H, width) array each: samples of the
+    texture's band-limited interpolant (module docstring), so a whole-pixel shift is the
+    texture rolled (up to the dropped Nyquist term) and no subpixel phase blurs it. Values
+    below 0 (the interpolant's ringing; the texture is smooth, so rare and small) are clipped
+    to 0: light is not negative."""
+    TW = texture.shape[1]
+    spectrum = np.fft.rfft(texture.astype(np.float64), axis=1)
+    if TW % 2 == 0:
+        spectrum[:, -1] = 0.0        # the Nyquist term: not a real function once shifted by a fraction
+    k = np.fft.rfftfreq(TW)
+    for o in np.asarray(offsets_px, np.float64):
+        img = np.fft.irfft(spectrum * np.exp(-2j * np.pi * k * o), n=TW, axis=1)[:, :width]
+        yield np.maximum(img, 0.0).astype(np.float32)
