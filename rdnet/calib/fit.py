@@ -25,7 +25,9 @@ Steps:
    that changes the event count (``Effect.changes_count``) is tried at *count-matched*
    thresholds (:class:`Compensated`), since that is how such an effect is concealed.
    Effects whose best screen point lowers the fit discrepancy by at least ``screen_gain``
-   of the fit discrepancy after the basic refit are *plausible*. Additive effects (hot
+   of the fit discrepancy after the basic refit are *plausible*; an effect with ``fit_own``
+   also when it lowers the score its search runs on (the fit discrepancy plus its own
+   statistic's fit term) by that much. Additive effects (hot
    pixels, timing) reuse the cached pixel-circuit events, so they are screened and
    fitted on the final pixel sample at the current thresholds.
 3. **Fit** (plausible effects: at most ``max_fitted`` of those that act in the pixel
@@ -992,19 +994,24 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
             # the gain relative to the fit discrepancy after the basic refit, as the
             # significance rule: a later effect must explain a share of the original mismatch
             screened[eff.name] = (evs, grid, keep, obj(current).fit_mean - min(e.fit_mean for e in evs),
-                                  obj(values).fit_mean)
+                                  obj(values).fit_mean, _guided_gain(obj, current, eff, evs))
         rel = {k: v[3] / max(v[4], 1e-12) for k, v in screened.items()}
+        # an effect searched on its own statistic too (fit_own) is plausible when its screen
+        # lowers the score it is searched on (the fit discrepancy plus that statistic's fit
+        # term), whose search would otherwise never start; the order stays the plain gain's
+        passes = {k: rel[k] > cfg.screen_gain or v[5] / max(v[4], 1e-12) > cfg.screen_gain
+                  for k, v in screened.items()}
         order = sorted(remaining, key=lambda e: -rel[e.name])
         # every plausible additive effect is fitted (cheap), at most max_fitted of the others
-        plausible = [e.name for e in order if rel[e.name] > cfg.screen_gain and level(e) is not search]
-        plausible += [e.name for e in order if rel[e.name] > cfg.screen_gain and level(e) is search][:cfg.max_fitted]
+        plausible = [e.name for e in order if passes[e.name] and level(e) is not search]
+        plausible += [e.name for e in order if passes[e.name] and level(e) is search][:cfg.max_fitted]
         tick(f"round {rnd} screen")
         log.info("round %d screen: %s; fitting %s", rnd,
                  ", ".join(f"{e.name} {100 * rel[e.name]:+.1f} %" for e in order), plausible or "none")
         round_c = []
         for eff in order:
             obj = level(eff)
-            evs, grid, keep, sgain, _ = screened[eff.name]
+            evs, grid, keep, sgain = screened[eff.name][:4]
             if eff.name in plausible:
                 v = fit_effect(obj, current, eff, evs, grid, keep, beta, thresholds=obj is search,
                                refit=eff.name in candidates)
@@ -1060,6 +1067,16 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
             "count_slope": beta, "rounds": rnd}
     return FitResult(base=base, basic=basic, final=cur_eval, basic_values=values, final_values=current,
                      selected=selected, candidates=candidates, rounds=rounds, n_sims=n, search=info)
+
+
+def _guided_gain(obj: Objective, values: dict, effect: Effect, evs: list[Evaluation]) -> float:
+    """For an effect with ``fit_own``: how much its best screen point lowers the score its
+    search runs on (:class:`OwnGuided`: the fit discrepancy plus its own statistic's fit
+    term); -inf for the others (their plausibility is the plain gain's)."""
+    if effect.fit_own <= 0:
+        return -math.inf
+    g = OwnGuided(obj, effect.statistic, effect.fit_own)
+    return g.adjust(obj(values)).fit_mean - min(g.adjust(e).fit_mean for e in evs)
 
 
 def look_alikes(chosen: Candidate, round_c: list, cfg) -> list[tuple[Candidate, float, float]]:

@@ -54,3 +54,31 @@ def test_a_guess_is_refined_within_a_factor_of_three():
     v = first_fit(obj, {}, EFFECTS["refractory_period"], [guess], None, None, 1.0)
     assert 1000.0 < v["refractory_us"] <= 3000.0
     assert obj(v).fit_mean < guess.fit_mean - 0.3
+
+
+def _evaluation(fit: float, own: float):
+    import numpy as np
+
+    from rdnet.calib.fit import Evaluation
+    return Evaluation(values={}, fit=np.array([fit]), held=np.array([fit]),
+                      fit_terms={"pixel_persistence": np.array([own])}, held_terms={})
+
+
+def test_an_effect_searched_on_its_own_statistic_is_screened_on_it_too():
+    """Threshold mismatch (fit_own 1) whose best screen point leaves the plain fit
+    discrepancy 2 % worse but lowers its own statistic's fit term by 0.3: the score its
+    search runs on drops by 0.3 - 0.02, which is what makes it plausible; an effect
+    without fit_own has no guided gain."""
+    from rdnet.calib.fit import _guided_gain
+    current = _evaluation(1.00, 0.40)
+
+    class Current:                   # the objective: the current config's evaluation
+        ctx = None
+
+        def __call__(self, values):
+            return current
+
+    obj = Current()
+    evs = [_evaluation(1.02, 0.10), _evaluation(1.05, 0.35)]
+    assert _guided_gain(obj, {}, EFFECTS["threshold_mismatch"], evs) == pytest.approx(0.28)
+    assert _guided_gain(obj, {}, EFFECTS["refractory_period"], evs) == -math.inf
