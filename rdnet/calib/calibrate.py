@@ -67,8 +67,10 @@ def _finite(v: float) -> float | None:
 def _evidence(c, fit: FitResult) -> str:
     top = sorted(c.term_gains.items(), key=lambda kv: -kv[1])[:2]
     terms = ", ".join(f"{k} {v:+.3f}" for k, v in top)
+    own = (f" and the score its search runs on (the fit discrepancy plus {c.effect.statistic}'s fit term) by "
+           f"too little" if c.effect.fit_own > 0 else "")
     head = "" if c.fitted else (
-        f"not fitted (its best screen point lowered the fit discrepancy by {c.screen_gain:+.3f}: below "
+        f"not fitted (its best screen point lowered the fit discrepancy by {c.screen_gain:+.3f}{own}: below "
         f"calibrate.screen_gain, or not among the calibrate.max_fitted best screened), so never named; "
         f"that point on the search sample, {len(c.evaluation.held)} seed(s): ")
     if c.vetoed:
