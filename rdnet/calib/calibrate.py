@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -249,7 +250,7 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
                              "margin": margin, "margin_seed_std": spread,
                              "separate_with": separating_measurement(eff.name, o.effect.name)}
                             for o, margin, spread in alike.get(eff.name, [])],
-            "caveats": caveats(eff.name, params, degrade, method, timing),
+            "caveats": caveats(eff.name, params, degrade, method, timing, fitted=bool(c and c.fitted)),
         })
     effects.sort(key=lambda e: (not e["missing"], e["rank"] or 99))
 
@@ -415,6 +416,10 @@ SEPARATING_MEASUREMENTS = (
 #: relative change of a tuning parameter from its declared value that :func:`caveats` reports
 TUNING_MOVED = 0.01
 
+#: a main parameter this close (relative) to an end of its search range is reported as a
+#: bound by :func:`caveats` (a search that ran into its range's end has not found a minimum)
+AT_BOUND = 0.01
+
 #: per tuning parameter (``Effect.tuning``): what its move does, what outside the effect
 #: vocabulary does the same (``{how}``: the frames as the calibration interpolated them),
 #: where the proof shows it, and the measurement that separates the two (:func:`caveats`)
@@ -434,7 +439,7 @@ TUNING_LOOK_ALIKES = {
 
 
 def caveats(name: str, params: dict, degrade: DegradeConfig, interpolation: str | None,
-            timing: dict | None = None) -> list[str]:
+            timing: dict | None = None, fitted: bool = True) -> list[str]:
     """What the user should know before trusting effect ``name``'s fitted ``params``
     beyond its held-out gain: look-alikes outside the effect vocabulary, which the
     forward selection cannot list (:func:`rdnet.calib.fit.look_alikes` compares effects only).
@@ -445,6 +450,10 @@ def caveats(name: str, params: dict, degrade: DegradeConfig, interpolation: str 
     the dark part of the scene moves the dark pixels' events the same way (docs/calibration.md "Bandwidth:
     the dark current is fitted": in the proof's block whose truths come from 4x denser frames,
     the true floor 0.078 was fitted as 0.025-0.061 while the held-out discrepancy fell).
+
+    A main parameter fitted at an end of its search range (within :data:`AT_BOUND`; only
+    when ``fitted``: a screened-out effect reports a screen grid point): the search stopped
+    at the range, not at a minimum, so the value is a bound.
 
     Latency, with ``timing`` (:func:`latency_timing`): how far the recorded events trail the
     frames, read without a simulator, against how far an ideal sensor's events trail them
@@ -464,6 +473,14 @@ def caveats(name: str, params: dict, degrade: DegradeConfig, interpolation: str 
                    f"{t['lower' if fitted < declared else 'higher']}, and {t['look_alike'].format(how=how)}, so "
                    f"these frames and events do not tell the two apart ({t['shown']}). To measure "
                    f"{t['measure']} on its own: {t['separate_with']}.")
+    for p in eff.params if eff and fitted else ():
+        v = float(params.get(p.key, math.nan))
+        edge = ("top" if p.hi * (1.0 - AT_BOUND) <= v <= p.hi else
+                "bottom" if p.lo <= v <= p.lo * (1.0 + AT_BOUND) else None)
+        if edge:
+            out.append(f"{p.key} fitted {v:.3g}, at the {edge} of its search range [{p.lo:g}, {p.hi:g}]: the "
+                       f"recording may ask for a value beyond it, or for something else that this effect only "
+                       f"approximates; read it as a bound, not a measurement.")
     if name == "latency" and timing and "latency_us" in params:
         text = _latency_caveat(float(params["latency_us"]), timing)
         if text:

@@ -358,3 +358,18 @@ def test_interpolation_choice_read_on_the_final_pixel_sample():
     c = fi["candidates"]
     assert c["flow"]["fit_after_basic_refit"] < c["selected"]["fit_after_basic_refit"]
     assert c["flow"]["fit_reachable"] < c["selected"]["fit_reachable"]
+
+
+def test_caveat_when_a_parameter_stops_at_the_end_of_its_range():
+    """A search that ran into its range's end found no minimum: the value is flagged as a
+    bound (latency's range is 50 us - 50 ms); a value inside the range is not."""
+    from rdnet.calib.calibrate import caveats
+    declared = DegradeConfig()
+    (text,) = caveats("latency", {"latency_us": 50000.0}, declared, "flow")
+    assert "latency_us fitted 5e+04, at the top of its search range [50, 50000]" in text
+    assert "a bound, not a measurement" in text
+    (text,) = caveats("refractory_period", {"refractory_us": 20.1}, declared, "flow")
+    assert "at the bottom of its search range" in text
+    assert caveats("latency", {"latency_us": 8300.0}, declared, "flow") == []
+    assert caveats("latency", {"latency_us": 49000.0}, declared, "flow") == []
+    assert caveats("latency", {"latency_us": 50000.0}, declared, "flow", fitted=False) == []   # a screen point
