@@ -465,12 +465,12 @@ def caveats(name: str, params: dict, degrade: DegradeConfig, interpolation: str 
     for p in eff.tuning if eff else ():
         if p.key not in params:
             continue
-        fitted, declared = float(params[p.key]), float(getattr(degrade, p.key))
-        if abs(fitted - declared) <= TUNING_MOVED * max(abs(declared), 1e-12):
+        value, declared = float(params[p.key]), float(getattr(degrade, p.key))
+        if abs(value - declared) <= TUNING_MOVED * max(abs(declared), 1e-12):
             continue
         t = TUNING_LOOK_ALIKES[p.key]
-        out.append(f"{p.key} fitted {fitted:.3g} against the declared {declared:.3g}: "
-                   f"{t['lower' if fitted < declared else 'higher']}, and {t['look_alike'].format(how=how)}, so "
+        out.append(f"{p.key} fitted {value:.3g} against the declared {declared:.3g}: "
+                   f"{t['lower' if value < declared else 'higher']}, and {t['look_alike'].format(how=how)}, so "
                    f"these frames and events do not tell the two apart ({t['shown']}). To measure "
                    f"{t['measure']} on its own: {t['separate_with']}.")
     for p in eff.params if eff and fitted else ():

@@ -983,7 +983,7 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
     rnd = 0
     while remaining and len(selected) < cfg.max_effects:
         rnd += 1
-        screened = {}
+        screened, rel, passes = {}, {}, {}
         for eff in remaining:
             obj = level(eff)
             prev = candidates.get(eff.name)
@@ -991,16 +991,16 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
                 evs, grid, keep = rescreen(obj, current, eff, prev.values, beta), None, None
             else:
                 evs, grid, keep = screen(obj, current, eff, cfg.search_points, beta)
+            sgain = obj(current).fit_mean - min(e.fit_mean for e in evs)
+            screened[eff.name] = (evs, grid, keep, sgain)
             # the gain relative to the fit discrepancy after the basic refit, as the
             # significance rule: a later effect must explain a share of the original mismatch
-            screened[eff.name] = (evs, grid, keep, obj(current).fit_mean - min(e.fit_mean for e in evs),
-                                  obj(values).fit_mean, _guided_gain(obj, current, eff, evs))
-        rel = {k: v[3] / max(v[4], 1e-12) for k, v in screened.items()}
-        # an effect searched on its own statistic too (fit_own) is plausible when its screen
-        # lowers the score it is searched on (the fit discrepancy plus that statistic's fit
-        # term), whose search would otherwise never start; the order stays the plain gain's
-        passes = {k: rel[k] > cfg.screen_gain or v[5] / max(v[4], 1e-12) > cfg.screen_gain
-                  for k, v in screened.items()}
+            ref = max(obj(values).fit_mean, 1e-12)
+            rel[eff.name] = sgain / ref
+            # an effect searched on its own statistic too (fit_own) is plausible when its screen
+            # lowers the score it is searched on (the fit discrepancy plus that statistic's fit
+            # term), whose search would otherwise never start; the order stays the plain gain's
+            passes[eff.name] = max(rel[eff.name], _guided_gain(obj, current, eff, evs) / ref) > cfg.screen_gain
         order = sorted(remaining, key=lambda e: -rel[e.name])
         # every plausible additive effect is fitted (cheap), at most max_fitted of the others
         plausible = [e.name for e in order if passes[e.name] and level(e) is not search]
@@ -1011,7 +1011,7 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
         round_c = []
         for eff in order:
             obj = level(eff)
-            evs, grid, keep, sgain = screened[eff.name][:4]
+            evs, grid, keep, sgain = screened[eff.name]
             if eff.name in plausible:
                 v = fit_effect(obj, current, eff, evs, grid, keep, beta, thresholds=obj is search,
                                refit=eff.name in candidates)

@@ -373,3 +373,8 @@ def test_caveat_when_a_parameter_stops_at_the_end_of_its_range():
     assert caveats("latency", {"latency_us": 8300.0}, declared, "flow") == []
     assert caveats("latency", {"latency_us": 49000.0}, declared, "flow") == []
     assert caveats("latency", {"latency_us": 50000.0}, declared, "flow", fitted=False) == []   # a screen point
+    # an effect with a tuning parameter too (its loop once reused the name `fitted`)
+    assert caveats("bandwidth", {"cutoff_hz": 1.0, "cutoff_floor": 0.078}, DegradeConfig(cutoff_floor=0.078),
+                   "flow", fitted=False) == []
+    (text,) = caveats("bandwidth", {"cutoff_hz": 1.0, "cutoff_floor": 0.078}, DegradeConfig(cutoff_floor=0.078), "flow")
+    assert "at the bottom of its search range [1, 3000]" in text
