@@ -167,23 +167,37 @@ def _wake_level(s0, s1, tp, t1, wake):
 
 
 @njit(cache=True, inline="always")
-def _lowpass(lp, decay, k, y, x, s1):
-    """One low-pass step of pixel (y, x) towards ``s1`` (step k); returns the new state."""
-    lpv = lp[y, x]
-    lpv += (1.0 - decay[k, y, x]) * (s1 - lpv)
+def _lowpass(lp, decay, k, y, x, s1, lraw):
+    """One low-pass step of pixel (y, x) towards ``s1`` (step k), the input linear from the
+    previous step's ``lraw[y, x]`` to ``s1`` within the step (exact first-order response);
+    returns the new state."""
+    a = float(decay[k, y, x])
+    l0 = lraw[y, x]
+    lraw[y, x] = s1
+    if a <= 0.0:
+        g = 0.0
+    elif a >= 0.9999999:
+        g = -0.5 * (1.0 - a)
+    else:
+        g = a + (1.0 - a) / math.log(a)
+    lpv = a * lp[y, x] + (1.0 - a) * s1 + (s1 - l0) * g
     lp[y, x] = lpv
     return lpv
 
 
 @njit(parallel=True, cache=True, nogil=True)
 def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, t_us, t_prev,
-                  s_prev, lp, acc, ref, last_t, last_bin, hz, nctr, key,
+                  s_prev, lp, lraw, acc, ref, last_t, last_bin, hz, nctr, key,
                   thr_on, thr_off, drift, refractory, period,
                   out_t, out_x, out_p, seg, counts, bad, cap):
     """Advance every pixel over the K steps of ``logf`` (K, H, W) log intensity.
 
     Per pixel and step k (dt = t_k - t_{k-1} in us):
-      low-pass (if ``use_lp``): lp += (1 - decay_k) (L_k - lp), decay_k = exp(-2 pi f(I) dt);
+      low-pass (if ``use_lp``): the exact first-order response over the step to an input
+      linear from L_{k-1} to L_k (``lraw`` keeps L_{k-1}): with a = decay_k = exp(-2 pi f(I) dt),
+      lp = a lp + (1 - a) L_k + (L_k - L_{k-1}) (a + (1 - a) / ln a), so the lag does not
+      depend on the step (holding L_k over the step made events about dt / 2 early;
+      benchmarks/bandwidth_step_size.py);
       leak: acc += drift dt; S_k = lp + acc (= L_k when both are off);
       each crossing of ``ref +- theta`` by the segment S_{k-1} -> S_k: ref moves by one
       threshold, event time t_{k-1} + (ref - S_{k-1}) / (S_k - S_{k-1}) dt, emitted unless
@@ -228,7 +242,7 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                     s1, b = _finite(logf[k, y, x])
                     nbad += b
                     if use_lp:
-                        s1 = _lowpass(lp, decay, k, y, x, s1)
+                        s1 = _lowpass(lp, decay, k, y, x, s1, lraw)
                     a = acc[y, x] + drift[y, x] * dt
                     acc[y, x] = a
                     _advance(y, x, s1 + a, s_prev, s0row, ref, thr_on, thr_off, crs)
@@ -236,7 +250,7 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                 for x in range(W):
                     s1, b = _finite(logf[k, y, x])
                     nbad += b
-                    _advance(y, x, _lowpass(lp, decay, k, y, x, s1), s_prev, s0row, ref, thr_on, thr_off, crs)
+                    _advance(y, x, _lowpass(lp, decay, k, y, x, s1, lraw), s_prev, s0row, ref, thr_on, thr_off, crs)
             else:
                 for x in range(W):
                     s1, b = _finite(logf[k, y, x])
@@ -642,6 +656,7 @@ class Sensor:
         # state
         self.s_prev = np.zeros((H, W))
         self.lp = np.zeros((H, W))
+        self.lraw = np.zeros((H, W))
         self.acc = np.zeros((H, W))
         self.ref = np.zeros((H, W))
         self.last_t = np.full((H, W), _NEVER, np.int64)
@@ -654,7 +669,7 @@ class Sensor:
         if self._shot_a > 0:
             self._noise_key = np.uint64(rng.integers(0, 1 << 63, dtype=np.int64))
             _init_hazard(self.shot_hazard, self._noise_ctr, self._noise_key)
-        self._state = (self.s_prev, self.lp, self.acc, self.ref, self.last_t, self.last_bin,
+        self._state = (self.s_prev, self.lp, self.lraw, self.acc, self.ref, self.last_t, self.last_bin,
                        self.shot_hazard, self._noise_ctr)
         self._backup = tuple(np.empty_like(a) for a in self._state)
         self._counts = np.zeros(H, np.int64)
@@ -730,6 +745,7 @@ class Sensor:
             L = np.log(v + self.sensor.log_eps)
         self.s_prev[...] = L
         self.lp[...] = L
+        self.lraw[...] = L
         self.acc[...] = 0.0
         self.ref[...] = L - self._phase * self.thr_on
         self.t_prev = self.t_start = int(t0)
@@ -841,7 +857,7 @@ class Sensor:
             out_t, out_x, out_p = self._bufs
             _pixel_kernel(logf, decay, lin, self._lp_coef > 0, self._use_leak, self._shot_a > 0,
                           self._shot_a, self._shot_b, t, t0,
-                          self.s_prev, self.lp, self.acc, self.ref, self.last_t, self.last_bin,
+                          self.s_prev, self.lp, self.lraw, self.acc, self.ref, self.last_t, self.last_bin,
                           self.shot_hazard, self._noise_ctr, self._noise_key, self.thr_on, self.thr_off, self.drift,
                           float(self.degrade.refractory_us), float(self.degrade.sample_period_us),
                           out_t, out_x, out_p, seg, self._counts, self._bad, self._cap)
