@@ -158,23 +158,25 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
             obj, fine, search = _objectives(ctx, sensor, degrade, seeds, simulate_fn)
             values, beta = fit_basic(search, fine)
             method = "given" if icfg is None else icfg.method
-            gains, best_v = screen_gains(search, fine, values, beta) if len(interps) > 1 else ({}, None)
+            gains, points = screen_gains(search, fine, values, beta) if len(interps) > 1 else ({}, {})
             best = max(gains, key=gains.get, default=None)
             # judged on the final pixel sample (search seeds), where the effects are scored:
             # a coarser search sample can miss what a few rows or columns hold (in a proof
             # scene, the dark column next to the still illumination edge, where flow drags
             # bright texture, holds about a fifth of the events; no even column does)
             ev = fine(values)            # seed 0 of the final scoring's basic refit: shared
-            reach = ev.fit_mean
-            if best_v is not None and gains[best] > 0.0:
-                reach = min(reach, fine(best_v).fit_mean)
+            reach, reach_by = ev.fit_mean, None
+            for name, v in points.items():
+                f = fine(v).fit_mean
+                if gains[name] > 0.0 and f < reach:
+                    reach, reach_by = f, name
             log.info("frame interpolation %s: %d simulated frames, basic refit %s: fit %.3f held-out %.3f; "
-                     "best screened effect %s: fit -> %.3f", method, len(ctx.sim_t), values, ev.fit_mean,
-                     ev.held_mean, best, reach)
+                     "reachable %.3f (with %s; best screened effect %s)", method, len(ctx.sim_t), values,
+                     ev.fit_mean, ev.held_mean, reach, reach_by, best)
             # how far an ideal sensor's events trail the frames when they come from this
             # interpolation (the report's latency timing; seed 0 of the basic refit: shared)
             lag = lag_behind_frames(fine.simulate(values, seeds[0]), ctx, sensor)
-            return (method, ctx, obj, fine, search, values, beta, ev, reach, best, gains, lag)
+            return (method, ctx, obj, fine, search, values, beta, ev, reach, best, gains, lag, reach_by)
 
         for i, tr in contexts_as_built(rec, cfg, sensor.log_eps, interps, source, then=trial):
             trials[i] = tr
@@ -185,7 +187,7 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
         timing = latency_timing(chosen[1], sensor, {tr[0]: tr[11]["latency_us"] for tr in trials},
                                 np.random.default_rng(seed))
         candidates = {tr[0]: {"fit_after_basic_refit": tr[7].fit_mean,
-                              "fit_reachable": tr[8], "best_screened_effect": tr[9],
+                              "fit_reachable": tr[8], "fit_reachable_with": tr[12], "best_screened_effect": tr[9],
                               "heldout_after_basic_refit": tr[7].held_mean,
                               "basic_refit": {k: float(v) for k, v in tr[5].items()},
                               "simulated_frames": int(len(tr[1].sim_t))} for tr in trials}
@@ -208,8 +210,8 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
         "rule": ("nuisance choice before any effect is named: the frames are upsampled with each "
                  "method, the configured parameters re-fitted and every left-out effect screened on "
                  "each; kept: the lowest reachable fit-segment discrepancy on the final pixel sample (the "
-                 "basic refit, or its best screened effect refined between its grid points on top of it, "
-                 "whichever fits better), so "
+                 "basic refit, or one of its calibrate.screen_refine best screened effects refined "
+                 "between its grid points on top of it, whichever fits best), so "
                  "an interpolation cannot win by mimicking a missing effect; effects are tested on the kept "
                  "one only"),
         "level": "final pixel sample, search seeds (the basic refit and the screen run on the search sample)",

@@ -88,7 +88,7 @@ def markdown(cal: Calibration, figures: list[str]) -> str:
         lines += [f"Frame interpolation (nuisance choice, lowest reachable fit discrepancy on the final pixel sample): "
                   f"**{fi['chosen']}**; " + ", ".join(
                       f"{m} fit {c['fit_after_basic_refit']:.3f} after the basic refit, {c['fit_reachable']:.3f} "
-                      f"with {c['best_screened_effect']} / held-out {c['heldout_after_basic_refit']:.3f} "
+                      f"with {c.get('fit_reachable_with') or 'no effect'} / held-out {c['heldout_after_basic_refit']:.3f} "
                       f"({c['simulated_frames']} frames)" for m, c in fi["candidates"].items()), ""]
     lt = r.get("latency_timing")
     if lt and lt.get("recorded_lag_us") is not None:

@@ -34,7 +34,7 @@ UPPER_BOUNDS = {
     # shares of the fit discrepancy after the basic refit: no effect removes more than all of it
     "min_relative_gain": 1.0, "screen_gain": 1.0,
     # effects: far more than the vocabulary holds (rdnet.calib.effects.EFFECTS, 10)
-    "max_effects": 100, "max_fitted": 100,
+    "max_effects": 100, "max_fitted": 100, "screen_refine": 100,
     # each screen point is a simulation of the search sample (1e9 was killed for memory)
     "search_points": 100,
     # each golden-section step shrinks the bracket by 0.618: 75 steps reach float64's
@@ -92,9 +92,11 @@ class CalibrateConfig:
     them). ``interpolation``: frame-interpolation methods (``interpolate.method``: flow,
     linear, selected) tried as a nuisance choice in the basic refit: the recording is upsampled with
     each, the configured parameters are re-fitted and the left-out effects screened on each,
-    and the one with the lowest reachable fit-segment discrepancy (the basic refit's, lowered
-    by the share its best screened effect removes) is kept for everything after (reported
-    as ``frame_interpolation``; empty = the ``interpolate`` config as given).
+    and the one with the lowest reachable fit-segment discrepancy (the basic refit's, or
+    that of one of its ``screen_refine`` best screened effects fitted on top of it) is kept
+    for everything after (reported as ``frame_interpolation``; empty = the ``interpolate``
+    config as given). ``screen_refine``: how many of the best screened effects are fitted
+    for that choice (more than 1: look-alikes trade places in the one-seed screen).
     ``warp``: ``interpolate.warp`` of every interpolation the calibration runs ('bicubic',
     'bicubic_clamped' or 'bilinear'; None = the ``interpolate`` section's): bicubic, because a bilinear
     warp delays the simulated events within each frame interval (docs/calibration.md,
@@ -128,6 +130,7 @@ class CalibrateConfig:
     refine_steps: int = 4
     screen_gain: float = 0.02
     max_fitted: int = 2
+    screen_refine: int = 2
     max_lag_us: int = 20000
     max_sim_steps: int = 25_000_000
     search_max_sim_steps: int = 4_000_000
@@ -146,7 +149,8 @@ class CalibrateConfig:
             raise ConfigError("calibrate.seeds", f"must be >= 2 (the seed spread is the noise scale), got {self.seeds}")
         if not 1 <= self.search_seeds <= self.seeds:
             raise ConfigError("calibrate.search_seeds", f"must be in [1, seeds={self.seeds}], got {self.search_seeds}")
-        for key in ("pixel_stride", "time_bin_us", "grid_px", "intensity_bins", "search_points", "max_fitted"):
+        for key in ("pixel_stride", "time_bin_us", "grid_px", "intensity_bins", "search_points", "max_fitted",
+                    "screen_refine"):
             positive(f"calibrate.{key}", getattr(self, key), allow_zero=False)
         for key in ("static_contrast", "significance", "min_relative_gain", "signature_significance", "max_effects", "screen_gain",
                     "refine_steps", "max_lag_us", "max_sim_steps", "search_max_sim_steps", "max_upsample",

@@ -127,3 +127,24 @@ def test_look_alikes_are_the_candidates_the_held_out_data_do_not_separate():
     assert "flicker" in separating_measurement("threshold_mismatch", "onoff_asymmetry")   # first match
     assert "still scene" in separating_measurement("hot_pixels", "threshold_mismatch")
     assert separating_measurement("latency", "hot_pixels").startswith("a recording that drives one")
+
+
+def test_between_look_alikes_the_surest_gain_is_named():
+    """The round's largest gain (bandwidth, 3.76 +- 0.74) and a look-alike whose held-out
+    discrepancy the seeds do not separate from it (latency, 3.49 +- 0.30, DAVIS346 seed 2):
+    latency's gain stands further above its spread (3.19 against 3.02), so it is named. A
+    look-alike that is not significant, or one the held-out data separate, is not."""
+    from rdnet.calib.fit import surest
+    cfg = CalibrateConfig()
+
+    def cand(name, held, gain, spread, significant=True):
+        c = Candidate(EFFECTS[name], {}, evaluation({"iei": held}), fitted=True)
+        c.gain, c.spread, c.significant = gain, spread, significant
+        return c
+
+    best = cand("bandwidth", [8.0, 8.9, 9.6], 3.76, 0.74)
+    alike = cand("latency", [8.3, 9.1, 9.9], 3.49, 0.30)
+    assert surest(best, [best, alike], cfg) is alike
+    assert surest(best, [best, cand("latency", [8.3, 9.1, 9.9], 3.49, 0.30, significant=False)], cfg) is best
+    assert surest(best, [best, cand("latency", [12.0, 12.9, 13.6], 3.49, 0.30)], cfg) is best   # separated
+    assert surest(best, [best, cand("latency", [8.3, 9.1, 9.9], 3.49, 0.80)], cfg) is best      # less sure

@@ -1,5 +1,6 @@
 """The round-1 screen that the frame-interpolation choice reads (``screen_gains``): the
-best effect's gain is measured between its grid points, not only at them."""
+best effects' gains are measured between their grid points, not only at them, and more
+than the single best one is fitted (``calibrate.screen_refine``)."""
 import math
 from types import SimpleNamespace
 
@@ -38,12 +39,48 @@ def test_the_reach_is_measured_between_grid_points():
     assert grid[2] == pytest.approx(1000.0) and grid[3] == pytest.approx(7071.07, rel=1e-4)
     at_grid = (BASE_FIT - min(e.fit_mean for e in evs)) / BASE_FIT
     assert at_grid == pytest.approx((2.0 - math.log(2.0) ** 2) / 3.0)         # at 1000 us
-    gains, best = screen_gains(obj, obj, {}, 1.0)
+    gains, points = screen_gains(obj, obj, {}, 1.0)
     v = first_fit(obj, {}, EFFECTS["refractory_period"], evs, grid, keep, 1.0)
-    assert best == v                                                      # the refined values
+    assert points == {"refractory_period": v}                             # the refined values
     assert 1400.0 < v["refractory_us"] < 2900.0                             # 4 golden steps in [141, 7071]
     assert gains["refractory_period"] == pytest.approx((BASE_FIT - obj(v).fit_mean) / BASE_FIT)
     assert gains["refractory_period"] > at_grid + 0.1
+
+
+class TwoEffects(Landscape):
+    """Refractory period (truth TRUE_US, as in Landscape: 1.48 at its best grid point, 1000
+    us) and readout saturation, whose minimum (0.5 at 3000 us) is deeper but steeper, so at
+    its best grid point (7071 us: 1.97) it looks worse than refractory: the screen's order
+    and the fitted order disagree, as look-alikes' do on a one-seed screen."""
+
+    def __init__(self, refine: int):
+        super().__init__()
+        self.ctx = SimpleNamespace(cfg=CalibrateConfig(candidates=["refractory_period", "readout_saturation"],
+                                                       screen_refine=refine))
+
+    def __call__(self, values):
+        r, p = values.get("refractory_us", 0.0), values.get("sample_period_us", 0.0)
+        fit = BASE_FIT
+        if r > 0:
+            fit = min(fit, 1.0 + math.log(r / TRUE_US) ** 2)
+        if p > 0:
+            fit = min(fit, 0.5 + 2.0 * math.log(p / 3000.0) ** 2)
+        self.calls.append(dict(values))
+        return SimpleNamespace(values=dict(values), fit_mean=fit, held_mean=fit, fit_count=self.real_fit_count)
+
+
+def test_more_than_the_best_screened_effect_is_fitted():
+    one, two = TwoEffects(1), TwoEffects(2)
+    gains1, points1 = screen_gains(one, one, {}, 1.0)
+    gains2, points2 = screen_gains(two, two, {}, 1.0)
+    assert list(points1) == ["refractory_period"]                # the screen's best only
+    assert list(points2) == ["refractory_period", "readout_saturation"]   # best first
+    reach1 = min(one(v).fit_mean for v in points1.values())
+    reach2 = min(two(v).fit_mean for v in points2.values())
+    assert reach1 > 1.0                       # refractory's floor
+    assert reach2 < 0.9                       # readout saturation fitted reaches below it
+    assert gains2["readout_saturation"] == pytest.approx((BASE_FIT - reach2) / BASE_FIT)
+    assert gains1["refractory_period"] == pytest.approx(gains2["refractory_period"])
 
 
 def test_a_guess_is_refined_within_a_factor_of_three():
