@@ -167,8 +167,10 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
             ev = fine(values)            # seed 0 of the final scoring's basic refit: shared
             reach, reach_by = ev.fit_mean, None
             for name, v in points.items():
+                if gains[name] <= 0.0:      # no gain on its own level: not simulated again
+                    continue
                 f = fine(v).fit_mean
-                if gains[name] > 0.0 and f < reach:
+                if f < reach:
                     reach, reach_by = f, name
             log.info("frame interpolation %s: %d simulated frames, basic refit %s: fit %.3f held-out %.3f; "
                      "reachable %.3f (with %s; best screened effect %s)", method, len(ctx.sim_t), values,

@@ -49,7 +49,7 @@ Steps:
    against the effect). The significant candidate with the largest gain is added, or, when
    the held-out data do not tell it apart from a significant look-alike
    (:func:`look_alikes`), the one of them whose gain stands furthest above its seed spread
-   (:func:`surest`); it ranks first in its round. The other
+   (:func:`surest`), which then ranks where the larger gain did. The other
    fitted candidates that helped are tried again at their fit on top of it, and fitted
    again if still plausible (at most ``max_effects`` rounds). Effects that do not pass the
    screen are reported with their search-level numbers and cannot be named.
@@ -1045,9 +1045,11 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
         # a vetoed candidate (its gain without its signature) is skipped, not a stop
         best = next((c for c in round_c if not c.vetoed), round_c[0])
         if best.significant:
-            best = surest(best, round_c, cfg)
-            round_c.remove(best)            # the named effect ranks first in its round
-            round_c.insert(0, best)
+            chosen = surest(best, round_c, cfg)
+            if chosen is not best:          # the named effect takes the place of the larger gain
+                round_c.remove(chosen)
+                round_c.insert(round_c.index(best), chosen)
+            best = chosen
         rounds.append(list(round_c))
         if not best.significant:
             break
