@@ -17,7 +17,8 @@ be shared) and every run's wall and CPU time are kept.
     PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_simulate_cli.py [--repeat 3] [--label after]
 
 ``--label`` names the entry in ``benchmarks/results/simulate_cli.json`` (other labels in
-the file are kept); ``--compare before DIR`` runs another checkout's CLI too (e.g. the
+the file are kept); ``--compare before DIR`` runs another checkout's CLI too, with that
+checkout's own ``params.yaml`` (its sensor, degrade and interpolate sections must match) (e.g. the
 code before the speed-ups: ``git archive <rev> | tar -x -C DIR``), A/B alternated in
 every repeat so both see the same load; ``--extra-set`` adds a ``--set`` to this
 checkout's runs (e.g. ``--extra-set interpolate.dis_finest_scale=2``).
@@ -37,6 +38,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 W, H = 346, 260
@@ -66,6 +68,19 @@ def _children_cpu_s() -> float:
     return ru.ru_utime + ru.ru_stime
 
 
+def params_files(codes: list[Path]) -> dict[Path, Path]:
+    """Each checkout's own ``params.yaml`` (this repository's where a checkout has none):
+    the keys of other sections can differ between versions, and a checkout rejects keys it
+    does not know. The sections ``rdnet simulate`` reads must be the same in all of them."""
+    out = {c: (c / "params.yaml" if (c / "params.yaml").is_file() else ROOT / "params.yaml") for c in codes}
+    sections = [{k: v for k, v in yaml.safe_load(p.read_text()).items() if k in ("sensor", "degrade", "interpolate")}
+                for p in out.values()]
+    if any(s != sections[0] for s in sections[1:]):
+        raise SystemExit("the checkouts' params.yaml differ in sensor, degrade or interpolate: "
+                         + ", ".join(str(p) for p in out.values()))
+    return out
+
+
 def run_cli(code: Path, src: Path, out: Path, params: Path, extra: list[str]) -> tuple[float, float, str]:
     """(wall s, CPU s (user + system, every thread), the CLI's last line) of one run."""
     env = dict(os.environ, PYTHONPATH=str(code))
@@ -91,11 +106,11 @@ def main(argv=None) -> int:
                     help="a --set for every run of --code (repeatable)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "simulate_cli.json")
     args = ap.parse_args(argv)
-    params = ROOT / "params.yaml"
     extra_args = [a for kv in args.extra_set for a in ("--set", kv)]
     codes = {args.label: (args.code, extra_args)}
     if args.compare:
         codes[args.compare[0]] = (Path(args.compare[1]), [])
+    params = params_files([code for code, _ in codes.values()])
     command = "python benchmarks/bench_simulate_cli.py " + " ".join(argv or sys.argv[1:])
     entries = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -105,7 +120,7 @@ def main(argv=None) -> int:
             render_clip(p, n)
         for code, extra in codes.values():
             for m in args.modes:   # warm-up (numba cache load/compile, disk cache), not timed
-                run_cli(code, srcs[SIZES[0]], tmp / "out.h5", params, MODES[m] + extra)
+                run_cli(code, srcs[SIZES[0]], tmp / "out.h5", params[code], MODES[m] + extra)
         runs = {lb: {m: {n: [] for n in SIZES} for m in args.modes} for lb in codes}
         cpus = {lb: {m: {n: [] for n in SIZES} for m in args.modes} for lb in codes}
         loads = {lb: [] for lb in codes}
@@ -114,7 +129,7 @@ def main(argv=None) -> int:
                 for n in SIZES:
                     for lb, (code, extra) in codes.items():
                         loads[lb].append(os.getloadavg()[0])
-                        dt, cpu, line = run_cli(code, srcs[n], tmp / "out.h5", params, MODES[m] + extra)
+                        dt, cpu, line = run_cli(code, srcs[n], tmp / "out.h5", params[code], MODES[m] + extra)
                         runs[lb][m][n].append(round(dt, 3))
                         cpus[lb][m][n].append(round(cpu, 3))
                         print(f"[{lb}] {m} {n} frames: {dt:.2f} s, CPU {cpu:.2f} s (load {loads[lb][-1]:.2f}) {line}",
