@@ -27,8 +27,8 @@ from tqdm.auto import tqdm
 from rdnet.calib.consistency import consistency, latency_scan
 from rdnet.calib.context import CalibContext, build_context, subsample_context
 from rdnet.calib.effects import EFFECTS, absent_effects, apply
-from rdnet.calib.fit import (SIGNATURE_Z, FitResult, Objective, SimulateFn, calibrate_fit, fit_basic, look_alikes,
-                             screen_gains)
+from rdnet.calib.fit import (SIGNATURE_Z, Evaluation, FitResult, Objective, SimulateFn, calibrate_fit, fit_basic,
+                             look_alikes, screen_gains)
 from rdnet.calib.locate import residuals, where
 from rdnet.calib.settings import CalibrateConfig
 from rdnet.calib.stats import STATISTICS
@@ -136,6 +136,24 @@ def selection_threads(cfg: CalibrateConfig, candidates: int) -> int:
     return max(1, min(cfg.threads * max(candidates, 1), os.cpu_count() or 1))
 
 
+@dataclass
+class _Trial:
+    """One frame interpolation's basic refit and round-1 screen (the nuisance choice keeps
+    the lowest ``reach``)."""
+    method: str
+    ctx: CalibContext
+    obj: Objective
+    fine: Objective
+    search: Objective
+    values: dict                 # the basic refit
+    beta: float                  # its count slope
+    basic: Evaluation            # on the final pixel sample (search seeds)
+    reach: float                 # the lowest fit discrepancy: the basic refit or a screened effect on it
+    reach_by: str | None         # the effect that reached it (None: the basic refit)
+    best_screened: str | None    # the effect with the largest screen gain
+    lag: dict                    # lag_behind_frames of the basic refit
+
+
 def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg: CalibrateConfig, *,
                seed: int, interpolate, source: str, simulate_fn: SimulateFn | None,
                progress: bool) -> Calibration:
@@ -178,24 +196,26 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
             # how far an ideal sensor's events trail the frames when they come from this
             # interpolation (the report's latency timing; seed 0 of the basic refit: shared)
             lag = lag_behind_frames(fine.simulate(values, seeds[0]), ctx, sensor)
-            return (method, ctx, obj, fine, search, values, beta, ev, reach, best, gains, lag, reach_by)
+            return _Trial(method, ctx, obj, fine, search, values, beta, ev, reach, reach_by, best, lag)
 
         for i, tr in contexts_as_built(rec, cfg, sensor.log_eps, interps, source, then=trial):
             trials[i] = tr
-            tick(f"basic refit ({tr[0]})")
-        chosen = min(trials, key=lambda tr: tr[8])
-        method, ctx, obj, fine, search = chosen[:5]
-        basic = (chosen[5], chosen[6])
-        timing = latency_timing(chosen[1], sensor, {tr[0]: tr[11]["latency_us"] for tr in trials},
+            tick(f"basic refit ({tr.method})")
+        chosen = min(trials, key=lambda tr: tr.reach)
+        method, ctx, obj, fine, search = chosen.method, chosen.ctx, chosen.obj, chosen.fine, chosen.search
+        basic = (chosen.values, chosen.beta)
+        timing = latency_timing(ctx, sensor, {tr.method: tr.lag["latency_us"] for tr in trials},
                                 np.random.default_rng(seed))
-        candidates = {tr[0]: {"fit_after_basic_refit": tr[7].fit_mean,
-                              "fit_reachable": tr[8], "fit_reachable_with": tr[12], "best_screened_effect": tr[9],
-                              "heldout_after_basic_refit": tr[7].held_mean,
-                              "basic_refit": {k: float(v) for k, v in tr[5].items()},
-                              "simulated_frames": int(len(tr[1].sim_t))} for tr in trials}
+        candidates = {tr.method: {"fit_after_basic_refit": tr.basic.fit_mean,
+                                  "fit_reachable": tr.reach, "fit_reachable_with": tr.reach_by,
+                                  "best_screened_effect": tr.best_screened,
+                                  "heldout_after_basic_refit": tr.basic.held_mean,
+                                  "basic_refit": {k: float(v) for k, v in tr.values.items()},
+                                  "simulated_frames": int(len(tr.ctx.sim_t))} for tr in trials}
         # the losing interpolations' simulations count too; their frames, engines and caches
         # are dropped before the forward selection (a few hundred MB on DAVIS346)
-        lost = [o for tr in trials if tr is not chosen for o in {id(o): o for o in tr[2:5]}.values()]
+        lost = [o for tr in trials if tr is not chosen
+                for o in {id(o): o for o in (tr.obj, tr.fine, tr.search)}.values()]
         lost_sims = sum(o.n_sims for o in lost)
         lost_kernel = sum(e.n_kernel for e in {id(o.engine): o.engine for o in lost}.values())
         del trials, chosen, lost, tr

@@ -1,22 +1,18 @@
 """The bandwidth limit's low-pass does not depend on the simulation's time step: a pixel on a
 log-intensity ramp fires at the same times whether its frames come every 5 us or every 2.5 ms
 (the continuous filter; rdnet.sim.sensor integrates the input as linear within each step)."""
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from rdnet.sim.sensor import Sensor
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
-RAMP_US = 20_000
-
-
-def first_events(step_us: int, cutoff_hz: float, start: float, n: int = 3) -> np.ndarray:
-    sensor = SensorConfig()
-    t = np.arange(0, RAMP_US + 1, step_us, dtype=np.int64)
-    log_i = np.log(start + sensor.log_eps) + t / RAMP_US          # +1 in log over the ramp
-    frames = np.maximum(np.exp(log_i) - sensor.log_eps, 0.0).astype(np.float32)[:, None, None]
-    ev = Sensor(1, 1, sensor, DegradeConfig(cutoff_hz=cutoff_hz), np.random.default_rng(0)).step(frames, t)
-    return np.asarray(ev.t[:n], np.int64)
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from bandwidth_step_size import event_times as first_events  # noqa: E402  (one pixel on the benchmark's ramp)
 
 
 @pytest.mark.parametrize("cutoff_hz, start", [(100.0, 0.5), (100.0, 0.05), (300.0, 0.5), (300.0, 0.05)])
