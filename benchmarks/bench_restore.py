@@ -67,13 +67,17 @@ def settle() -> float:
     return time.perf_counter() - t
 
 
-def run_one(path: Path, method: str, work: Path, scores: bool = True, root: Path = ROOT) -> dict:
+def run_one(path: Path, method: str, work: Path, scores: bool = True, root: Path = ROOT,
+            sets: tuple[str, ...] = ()) -> dict:
     """One ``rdnet restore`` of ``path`` into ``work/<stem>_<method>.h5`` by the code of the
-    checkout ``root`` (its working directory and first on the path), in a child process."""
+    checkout ``root`` (its working directory and first on the path), in a child process;
+    ``sets``: more ``--set key=value`` overrides."""
     waited = settle() if SETTLE["seconds"] > 0 else 0.0
     out = work / f"{path.stem}_{method}.h5"
     cmd = [sys.executable, "-m", "rdnet.cli", "restore", str(path), str(out), "--method", method, "--no-progress",
            "--set", f"restore.scores={'true' if scores else 'false'}"]
+    for s in sets:
+        cmd += ["--set", s]
     env = {**os.environ, "PYTHONPATH": str(root) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     load = os.getloadavg()[0]
     t = time.perf_counter()
@@ -97,6 +101,7 @@ def run_one(path: Path, method: str, work: Path, scores: bool = True, root: Path
             "restore_loop_events_per_s": info["events_per_s"],
             "restore_loop_realtime_factor_cpu": dur_s / info["cpu_seconds"] if info["cpu_seconds"] > 0 else None,
             "faster_than_realtime": dur_s / wall > 1.0, "load_average_1min_before": load,
+            **({"workers": info["workers"]} if "workers" in info else {}),
             **({"settle_wait_s": waited} if SETTLE["seconds"] > 0 else {})}
 
 

@@ -95,9 +95,14 @@ class SeedEnsemble(nn.Module):
         mu, logit = self.heads(image, voxel)
         return (mu, logit) if return_heads else torch.sigmoid(logit) * mu
 
-    def sparse_heads(self, image, counts, logit_min: float):
+    def sparse_heads(self, image, counts, logit_min: float, pixels=None):
         mu, logit = self.heads(image, counts)
         keep = logit >= logit_min
+        if pixels is not None:          # the kept voxels at those pixels, as index arrays
+            at = torch.zeros_like(keep)
+            y, x = (torch.as_tensor(np.asarray(a, np.int64)) for a in pixels)
+            at[0, :, y, x] = True
+            keep = tuple(np.nonzero((keep & at).cpu().numpy()))
 
         def mu_at(b, c, y, x):
             return mu[tuple(torch.as_tensor(np.asarray(a, np.int64), device=mu.device) for a in (b, c, y, x))]

@@ -66,3 +66,14 @@ def layer_norm_rows(x: np.ndarray, weight: np.ndarray, bias: np.ndarray, eps: fl
     _layer_norm_rows(x, weight.astype(np.float32, copy=False), bias.astype(np.float32, copy=False),
                      np.float32(eps), out)
     return out
+
+
+def concurrent_calls_safe() -> bool:
+    """Whether :func:`layer_norm_rows` may run in several threads at once: numba's threading
+    layer is not ``workqueue`` (which aborts the process on concurrent launches; omp and tbb
+    take them). Loads the compiled kernel first (a tiny call), so concurrent first calls
+    never compile or load it twice."""
+    import numba
+    one = np.zeros((1, 1), np.float32)
+    layer_norm_rows(one, np.ones(1, np.float32), np.zeros(1, np.float32), 1e-6)
+    return numba.threading_layer() != "workqueue"

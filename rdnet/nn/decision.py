@@ -401,18 +401,42 @@ def drop_unsupported(index: np.ndarray, counts: np.ndarray, shape: tuple, decisi
     return index[keep], counts[keep]
 
 
+#: the largest share of a window's pixels with support (:func:`input_support`) at which
+#: :func:`sparse_decided_entries` computes the occupancy logits pixel by pixel instead of by
+#: the dense conv (measured: benchmarks/results/restore_gated_logits.json)
+GATED_MAX_SUPPORT = 0.25
+
+
 def sparse_decided_entries(stage1, image, counts, decision: Mapping | None) -> tuple[np.ndarray, np.ndarray]:
     """:func:`decided_entries` of a count-output stage 1's heads on the torch inputs
     ``image`` (None for events-only) and ``counts`` (ON-then-OFF counts), computed with
     :meth:`rdnet.nn.models.RestoreNet.sparse_heads`: the same voxels (the logits are
     computed as in the dense heads) and their counts from ``mu`` evaluated at those voxels
-    only. Inference only (:mod:`rdnet.restore.learned`); call it under ``inference_mode``."""
+    only. When the decision applies its support rule and at most
+    :data:`GATED_MAX_SUPPORT` of one sample's pixels are supported, the logits are
+    computed at the supported pixels alone (``sparse_heads(pixels=...)``): equal to the
+    dense conv up to the order of its float32 sums, so a voxel whose logit lies within
+    rounding of the cut may go the other way. Inference only (:mod:`rdnet.restore.learned`);
+    call it under ``inference_mode``."""
     lt = _decision_logit(decision)
     if lt == float("inf"):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    gain = decision_gain(decision)
+    shape = _count_shape(counts)
+    if support_applies(decision) and shape[0] == 1:
+        supported = neighbour_support(input_occupancy(counts))[0]
+        if supported.mean() <= GATED_MAX_SUPPORT:
+            where, mu_at = stage1.sparse_heads(image, counts, lt, pixels=np.nonzero(supported))
+            return _kept_entries(where, mu_at, gain, shape)      # every one supported
     keep, mu_at = stage1.sparse_heads(image, counts, lt)
-    return drop_unsupported(*_kept_entries(keep, mu_at, decision_gain(decision)), tuple(keep.shape), decision,
-                            counts)
+    return drop_unsupported(*_kept_entries(keep, mu_at, gain), tuple(keep.shape), decision, counts)
+
+
+def _count_shape(counts) -> tuple:
+    """(n, C, H, W) of a stage-1 count input (a tensor, or a one-sample
+    :class:`rdnet.nn.sparse.SparseVoxels`)."""
+    from rdnet.nn.sparse import SparseVoxels
+    return (1, *counts.shape) if isinstance(counts, SparseVoxels) else tuple(counts.shape)
 
 
 def _decision_logit(decision: Mapping | None) -> float:
@@ -421,22 +445,26 @@ def _decision_logit(decision: Mapping | None) -> float:
     return logit_threshold(float(read_decision(decision, "counts")["threshold"]))
 
 
-def _kept_entries(keep, mu_at, gain: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+def _kept_entries(keep, mu_at, gain: float = 1.0, shape: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(index, counts)`` of :func:`decided_entries` from the bool mask ``keep`` (torch,
-    (n, C, H, W), any memory format) and ``mu_at(n, c, y, x)``, the count head at the
-    kept voxels (index arrays, in increasing C order); ``gain``: :func:`gained`."""
-    shape = tuple(keep.shape)
-    keep = keep.cpu()
-    # read the mask in memory order (a channels_last tensor is NHWC in memory), then map
-    # the positions back to the C order of (n, C, H, W)
-    perm = sorted(range(keep.dim()), key=lambda d: (-keep.stride(d), d))
-    view = keep.permute(*perm)
-    if not view.is_contiguous():
-        perm, view = list(range(keep.dim())), keep.contiguous()
-    pos = np.unravel_index(np.flatnonzero(view.numpy()), tuple(view.shape))
-    where = [None] * keep.dim()
-    for axis, p in zip(perm, pos):
-        where[axis] = p
+    (n, C, H, W), any memory format), or from the kept voxels' ``(n, c, y, x)`` index arrays
+    in a voxel grid of ``shape``, and ``mu_at(n, c, y, x)``, the count head at the kept
+    voxels (index arrays, in increasing C order); ``gain``: :func:`gained`."""
+    if isinstance(keep, tuple):
+        where = [np.asarray(a, np.int64) for a in keep]
+    else:
+        shape = tuple(keep.shape)
+        keep = keep.cpu()
+        # read the mask in memory order (a channels_last tensor is NHWC in memory), then map
+        # the positions back to the C order of (n, C, H, W)
+        perm = sorted(range(keep.dim()), key=lambda d: (-keep.stride(d), d))
+        view = keep.permute(*perm)
+        if not view.is_contiguous():
+            perm, view = list(range(keep.dim())), keep.contiguous()
+        pos = np.unravel_index(np.flatnonzero(view.numpy()), tuple(view.shape))
+        where = [None] * keep.dim()
+        for axis, p in zip(perm, pos):
+            where[axis] = p
     index = np.ravel_multi_index(tuple(where), shape).astype(np.int64)
     order = np.argsort(index, kind="stable")
     index = index[order]

@@ -59,12 +59,23 @@ goes in as its entries (:func:`rdnet.events.voxel.voxel_entries`,
 those entries and the dense grid, its padding and channels_last copy are never made
 (``benchmarks/bench_restore_ab.py``: with the vectorised layer norm and the other changes of
 that commit, 0.66-0.85x -> 0.81-1.17x real time in steady state, alternated rounds; the
-night file 77 -> 57 s; the same events on both).
+night file 77 -> 57 s; the same events on both). Two more (2026-11-30): with a decision
+that applies the support rule (every study restorer's), a window whose supported pixels are
+at most :data:`rdnet.nn.decision.GATED_MAX_SUPPORT` of the frame (a DAVIS346 window: 1.6 %
+on average, 2.7 % at most) gets its occupancy logits at those pixels alone
+(``sparse_heads(pixels=...)``) instead of from the dense conv and mask that were about a
+fifth of its time; and on the CPU several windows run at once, one per torch thread
+(:meth:`LearnedRestorer.parallel`, ``restore.workers``), since on these shared 2 cores one
+window on both threads ran at 30 or at 50 ms depending on the host's other load, one window
+per core at 27-30 ms (in-process, alternated). Both give the same events as before on the
+DAVIS346, DVXplorer, sparklers and night files (``benchmarks/results/restore_workers.json``
+for the settings, ``restore_learned_speed_ab_gated_workers.json`` against the previous code).
 """
 from __future__ import annotations
 
+import contextlib
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
@@ -76,6 +87,11 @@ from rdnet.events.select import capped_entries, floored_entries, select_events, 
 from rdnet.events.voxel import entry_events, voxel_entries, voxel_events, voxel_grid
 
 log = logging.getLogger(__name__)
+
+#: ``restore.workers: 0`` runs one window per torch thread on sensors of at most this many
+#: pixels (640 x 480), one window on every thread on larger ones
+#: (:meth:`LearnedRestorer.parallel`)
+WINDOW_PER_THREAD_MAX_PIXELS = 640 * 480
 
 #: the study's trained restorers (dvc repro outputs), by whether frames are available.
 STUDY_MODELS = {True: Path("models/restore_image"), False: Path("models/restore_events")}
@@ -144,6 +160,39 @@ class LearnedRestorer:
     #: False: each voxel raised to at least its input events, every input event in the
     #: output (``restore.delete_events``)
     delete_events: bool = True
+    #: numba threads per window while :meth:`parallel` hands out windows (None: numba's own)
+    _numba_threads: int | None = field(default=None, init=False, repr=False, compare=False)
+
+    @contextlib.contextmanager
+    def parallel(self, workers: int = 0, sensor_pixels: int = 0):
+        """Inside, :meth:`restore` may be called for several windows at once: yields how many
+        (``workers``; 0 = one per torch thread on a sensor of at most
+        :data:`WINDOW_PER_THREAD_MAX_PIXELS` pixels, else 1), with torch's intra-op threads
+        (and numba's, per window) shared among them, and restores the thread count on exit.
+        1 (one window at a time, every thread on it) on a GPU, with one thread, or when the
+        numba kernel of :class:`rdnet.nn.blocks.LayerNorm2d` cannot be called concurrently.
+        A window's events do not depend on how many run at once. On 2 cores a window per
+        core was faster up to 640 x 480 and slower at 1280 x 720, where one window's
+        operations are large enough to share out (``benchmarks/results/restore_workers.json``)."""
+        import torch
+        threads = torch.get_num_threads()
+        n = int(workers) if workers else threads if sensor_pixels <= WINDOW_PER_THREAD_MAX_PIXELS else 1
+        if n <= 1 or torch.device(self.device).type != "cpu":
+            yield 1
+            return
+        from rdnet.nn.cpu_kernels import concurrent_calls_safe
+        if not concurrent_calls_safe():
+            log.info("numba's workqueue threading layer cannot run windows concurrently: one at a time")
+            yield 1
+            return
+        per = max(1, threads // n)
+        torch.set_num_threads(per)
+        self._numba_threads = per
+        try:
+            yield n
+        finally:
+            torch.set_num_threads(threads)
+            self._numba_threads = None
 
     @property
     def output(self) -> str:
@@ -193,6 +242,9 @@ class LearnedRestorer:
         from rdnet.nn.decision import sparse_decided_entries
         from rdnet.nn.sparse import SPARSE_MAX_DENSITY, SparseVoxels
 
+        if self._numba_threads is not None:      # per thread: set in each window's thread
+            import numba
+            numba.set_num_threads(min(self._numba_threads, numba.config.NUMBA_NUM_THREADS))
         t0_us, t1_us = int(t0_us), int(t1_us)
         if t1_us <= t0_us:
             raise ValidationError("window", f"t1_us {t1_us} must be after t0_us {t0_us}")

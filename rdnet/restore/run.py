@@ -10,7 +10,8 @@ the recording has them) and OUT.json beside it (OUT with suffix ``.json``):
 * ``events_in``, ``events_out``, ``kept_fraction``, ``events_not_recorded`` (output events
   that are not events of the recording, as the restorer got them: time, pixel and polarity
   compared, :func:`rdnet.events.select.shared_count`; a filter's are 0, a learned
-  restorer's are the events it adds or moves), ``windows``, ``window_us``,
+  restorer's are the events it adds or moves), ``windows``, ``window_us``, ``workers``
+  (windows restored at once: ``restore.workers``),
   ``seconds`` (wall time of the restore loop, after reading), ``cpu_seconds`` (its CPU
   time), ``events_per_s`` (input events per second of wall time),
   ``realtime_factor`` (recording duration / wall time),
@@ -37,6 +38,7 @@ OUT.h5/OUT.json is left untouched).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import time
@@ -50,7 +52,7 @@ from rdnet.errors import ConfigError, FormatError
 from rdnet.events.core import Events, concatenate
 from rdnet.events.select import shared_count
 from rdnet.restore.base import get_restorer
-from rdnet.restore.stream import windows
+from rdnet.restore.stream import ordered_map, windows
 
 log = logging.getLogger(__name__)
 
@@ -145,7 +147,7 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
         window_us = int(restorer.window_us or cfg.window_us)
         hot = None
         if method != "raw" and cfg.hot_pixel_factor > 0:
-            from rdnet.restore.hotpixels import hot_pixels, polarity_counts, polarity_model
+            from rdnet.restore.hotpixels import drop_pixels, hot_pixels, polarity_counts, polarity_model
             counts, on_counts, dur = polarity_counts(shifted(src.chunks(cfg.chunk_events), cfg.latency_us),
                                                      src.width, src.height)
             hot = hot_pixels(counts, dur, cfg.hot_pixel_factor, cfg.hot_pixel_min_hz)
@@ -174,42 +176,50 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                 tqdm(total=total, desc=f"restore {restorer.name}", unit="ev", unit_scale=True,
                      disable=(not progress) or None) as bar:
             early: list[int] = []                   # events before the first one the shift keeps
-            for t0, t1, ev in _windows_after_shift(src.chunks(cfg.chunk_events), cfg.latency_us, early, window_us,
-                                                   recording):
-                frame = nearest_frame(frames, (t0 + t1) // 2, grey) if has_frames else None
-                kept = ev
-                if hot is not None:
-                    from rdnet.restore.hotpixels import drop_pixels
-                    kept = drop_pixels(ev, hot)
+
+            def windows_to_restore():
+                # (t0, t1, events as read, events handed to the restorer, frame), in order
+                for t0, t1, ev in _windows_after_shift(src.chunks(cfg.chunk_events), cfg.latency_us, early,
+                                                       window_us, recording):
+                    frame = nearest_frame(frames, (t0 + t1) // 2, grey) if has_frames else None
+                    yield t0, t1, ev, ev if hot is None else drop_pixels(ev, hot), frame
+
+            # a learned restorer on the CPU takes several windows at once (restore.workers);
+            # everything else here runs in this thread, window by window in order
+            parallel = getattr(restorer, "parallel", None)
+            at_once = parallel(cfg.workers, src.width * src.height) if parallel is not None else contextlib.nullcontext(1)
+            with at_once as workers:
+                restored = ordered_map(lambda w: restorer.restore(w[3], w[0], w[1], w[4]),
+                                       windows_to_restore(), workers)
+                for (t0, t1, ev, kept, _), res in restored:
                     n_hot += len(ev) - len(kept)
-                res = restorer.restore(kept, t0, t1, frame)
-                n_shared += shared_count(res, kept)
-                pending.append(res)
-                n_pending += len(res)
-                if n_pending >= cfg.chunk_events:          # few large HDF5 appends, memory bounded
-                    writer.append_events(concatenate(pending))
-                    pending, n_pending = [], 0
-                recorded = ev
-                if shift:                                   # the raw scores: the stream as recorded
-                    arr = ev.array.copy()
-                    arr["t"] += shift
-                    recorded = Events(arr, ev.width, ev.height, validate=False)
-                if cfg.scores:
-                    esr_raw.add(recorded)
-                    esr_out.add(res)
-                if consistency is not None:
-                    if n_in + len(ev) > cfg.score_max_events:
-                        consistency = None
-                    else:                                   # every event before the window's end given
-                        consistency.add("raw", recorded, t1 + shift)
-                        consistency.add("restored", res, t1)
-                if len(ev):
-                    t_first = int(ev.t[0]) if t_first is None else t_first
-                    t_last = int(ev.t[-1])
-                n_in += len(ev)
-                n_out += len(res)
-                n_win += 1
-                bar.update(len(ev))
+                    n_shared += shared_count(res, kept)
+                    pending.append(res)
+                    n_pending += len(res)
+                    if n_pending >= cfg.chunk_events:          # few large HDF5 appends, memory bounded
+                        writer.append_events(concatenate(pending))
+                        pending, n_pending = [], 0
+                    recorded = ev
+                    if shift:                                   # the raw scores: the stream as recorded
+                        arr = ev.array.copy()
+                        arr["t"] += shift
+                        recorded = Events(arr, ev.width, ev.height, validate=False)
+                    if cfg.scores:
+                        esr_raw.add(recorded)
+                        esr_out.add(res)
+                    if consistency is not None:
+                        if n_in + len(ev) > cfg.score_max_events:
+                            consistency = None
+                        else:                                   # every event before the window's end given
+                            consistency.add("raw", recorded, t1 + shift)
+                            consistency.add("restored", res, t1)
+                    if len(ev):
+                        t_first = int(ev.t[0]) if t_first is None else t_first
+                        t_last = int(ev.t[-1])
+                    n_in += len(ev)
+                    n_out += len(res)
+                    n_win += 1
+                    bar.update(len(ev))
             n_in += sum(early)
             if pending:
                 writer.append_events(concatenate(pending))
@@ -241,7 +251,7 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                 "kept_fraction": n_out / n_in if n_in else None,
                 "events_not_recorded": n_out - n_shared,
                 "latency_dropped": sum(early),
-                "windows": n_win, "window_us": window_us, "duration_us": duration,
+                "windows": n_win, "window_us": window_us, "workers": workers, "duration_us": duration,
                 "seconds": seconds, "cpu_seconds": cpu_seconds, "events_per_s": n_in / seconds if seconds > 0 else None,
                 "realtime_factor": (duration * 1e-6) / seconds if seconds > 0 else None,
                 "scores": scores, "notes": notes,

@@ -33,7 +33,8 @@ RESTORE_UPPER_BOUNDS = {
     # raw events scored at most: a day at 10 M events/s is 8.6e11 (the default 1e9: no cap)
     "score_max_events": 1e12,
     # a pixel a million times its neighbours' median count; a rate as the simulator's
-    "hot_pixel_factor": 1e6, "hot_pixel_min_hz": MAX_RATE_HZ}
+    "hot_pixel_factor": 1e6, "hot_pixel_min_hz": MAX_RATE_HZ,
+    "workers": MAX_THREADS}
 
 
 def check_stcf_k(key: str, k: int, radius: int) -> None:
@@ -56,7 +57,12 @@ class RestoreConfig:
     ``gef_eps`` and ``gef_bins`` (time bins of the window voxel grid GEF filters);
     ``gef_mode``: mask (keep the events of the pixels GEF supports, unchanged) or filter
     (the guided-filtered signed voxel grid rounded back to events: times move to the bins).
-    ``device``: for the learned restorer (one window at a time). ``esr_interval_us``: packet length
+    ``device``: for the learned restorer. ``workers``: on a CPU, how many windows the
+    learned restorer runs at once, torch's threads shared among them (0: one per torch
+    thread on sensors up to 640 x 480, one at a time on larger ones, where a window's
+    operations are large enough to share out; 1: one window at a time on every thread); the
+    events are the same either way.
+    ``esr_interval_us``: packet length
     of the ESR no-reference score (E-MLB uses 33 ms); ``scores``: compute the no-reference
     scores at all (false: faster, OUT.json has counts only); ``score_max_events``: event-frame
     consistency is scored only when the raw stream has at most this many events (it is
@@ -97,6 +103,7 @@ class RestoreConfig:
     gef_bins: int = 5
     gef_mode: Literal["mask", "filter"] = "mask"
     device: Literal["cpu", "cuda", "auto"] = "auto"
+    workers: int = 0
     esr_interval_us: int = 33_000
     scores: bool = True
     score_max_events: int = 1_000_000_000
@@ -113,6 +120,7 @@ class RestoreConfig:
                     "gef_radius", "gef_bins", "esr_interval_us"):
             positive(f"restore.{key}", getattr(self, key), allow_zero=False)
         positive("restore.gef_eps", self.gef_eps, allow_zero=False)
+        positive("restore.workers", self.workers)
         positive("restore.score_max_events", self.score_max_events)
         positive("restore.hot_pixel_factor", self.hot_pixel_factor)
         if 0 < self.hot_pixel_factor < 1:

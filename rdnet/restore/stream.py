@@ -12,7 +12,7 @@ and events spanning 2^63 us once asked for a 1.3 PiB array of window edges).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterable, Iterator
 
 import numpy as np
 
@@ -57,3 +57,30 @@ def windows(chunks: Iterator[Events], window_us: int, *, path: str | Path = "rec
         raise FormatError(path, "events", "recording has no events")
     ev = concatenate(buf) if len(buf) > 1 else buf[0]
     yield t0, t0 + W, ev
+
+
+def ordered_map(fn: Callable, items: Iterable, workers: int = 1) -> Iterator[tuple]:
+    """``(item, fn(item))`` for every item, in the order of ``items``. ``workers`` > 1: up to
+    that many calls run at once in threads (``fn`` must release the GIL to gain: torch does),
+    with at most ``2 x workers`` items taken ahead of the one yielded, so memory stays
+    bounded on a long stream; 1: each call in turn in this thread."""
+    if workers <= 1:
+        for item in items:
+            yield item, fn(item)
+        return
+    from collections import deque
+    from concurrent.futures import ThreadPoolExecutor
+    ahead: deque = deque()
+    with ThreadPoolExecutor(workers, thread_name_prefix="rdnet-window") as pool:
+        try:
+            for item in items:
+                ahead.append((item, pool.submit(fn, item)))
+                if len(ahead) >= 2 * workers:
+                    item0, fut = ahead.popleft()
+                    yield item0, fut.result()
+            while ahead:
+                item0, fut = ahead.popleft()
+                yield item0, fut.result()
+        finally:
+            for _, fut in ahead:             # an error or an early close: drop what is queued
+                fut.cancel()

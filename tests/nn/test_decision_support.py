@@ -156,3 +156,49 @@ def test_every_decision_path_applies_the_count_gain_alike():
     grid = np.zeros(mu.numel(), np.int64)
     grid[got[0]] = got[1]
     np.testing.assert_array_equal(grid.reshape(want.shape), want)
+
+
+@pytest.mark.parametrize("channels_last", [False, True])
+def test_logits_at_the_supported_pixels_alone_keep_the_dense_decision(channels_last, monkeypatch):
+    import rdnet.nn.decision as decision_mod
+    net = perturbed_count_net(5, 0.3)
+    x, img = count_inputs(0.005)             # few events: 17 % of the pixels supported
+    supported = input_support(x)[0, 0]
+    assert 0 < supported.mean() <= decision_mod.GATED_MAX_SUPPORT
+    if channels_last:
+        net.to(memory_format=torch.channels_last)
+        x, img = (t.contiguous(memory_format=torch.channels_last) for t in (x, img))
+    idx = np.flatnonzero(x[0].contiguous().numpy().ravel())
+    sp = SparseVoxels.of(idx, x[0].contiguous().numpy().ravel()[idx], tuple(x.shape[1:]), channels_last)
+    with torch.inference_mode():
+        mu, logit = net(img, x, return_heads=True)
+    at = np.sort(torch.sigmoid(logit)[0][:, torch.from_numpy(supported)].flatten().numpy())
+    calls = []
+    real_heads = net.sparse_heads
+    monkeypatch.setattr(net, "sparse_heads", lambda *a, **k: calls.append(k.get("pixels")) or real_heads(*a, **k))
+    for q in (0.5, 0.9):                     # cuts between two supported probabilities: no ties
+        i = int(q * at.size)
+        ruled = decision_dict(float(at[i - 1] + at[i]) / 2, support={"rule": SUPPORT_RULE, "drop": True})
+        want = decided_entries(mu, logit, ruled, x)
+        assert want[0].size > 0
+        with torch.inference_mode():
+            for inputs in (x, sp):
+                calls.clear()
+                got = sparse_decided_entries(net, img, inputs, ruled)
+                assert calls and calls[0] is not None          # the supported pixels alone were computed
+                np.testing.assert_array_equal(got[0], want[0])
+                np.testing.assert_array_equal(got[1], want[1])
+
+
+def test_sparse_heads_at_pixels_gives_the_dense_logits_there():
+    net = perturbed_count_net(3, 0.3)
+    x, img = count_inputs(0.02)
+    with torch.inference_mode():
+        mu, logit = net(img, x, return_heads=True)
+        y, xx = np.nonzero(np.ones((13, 19), bool))           # every pixel, borders included
+        s = logit.flatten().sort().values
+        cut = float(s[s.numel() // 2 - 1] + s[s.numel() // 2]) / 2      # between two logits: no tie
+        where, mu_at = net.sparse_heads(img, x, cut, pixels=(y, xx))
+        keep = logit >= cut
+    np.testing.assert_array_equal(np.stack(where), np.stack(np.nonzero(keep.numpy())))
+    torch.testing.assert_close(mu_at(*where), mu[keep], rtol=1e-5, atol=1e-5)

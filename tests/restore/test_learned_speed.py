@@ -201,3 +201,95 @@ def test_support_rule_removes_isolated_noise_on_the_restore_path(tmp_path, threa
     kept = ev.array[keep]
     np.testing.assert_array_equal(np.sort(out["x"].astype(int) * 100 + out["y"]),
                                   np.sort(kept["x"].astype(int) * 100 + kept["y"]))
+
+
+@pytest.mark.parametrize("image_channels", [1, 0])
+def test_windows_restored_at_once_give_the_same_events_and_scores(tmp_path, image_channels):
+    """``restore.workers``: the learned restorer takes several windows at once on the CPU
+    (rdnet.restore.learned.LearnedRestorer.parallel); the output file, counts and scores equal
+    those of one window at a time, and the caller's torch thread count is back afterwards."""
+    import json
+
+    from rdnet.cli import main
+    from rdnet.events import Frames, Recording
+    from rdnet.events.io import read_recording, write_recording
+    ev, _ = edge_noise_hot(seed=3)
+    frames = None
+    if image_channels:
+        t = 7_500 + WINDOW * np.arange(4)
+        frames = Frames(np.stack([_frame(int(tt)) for tt in t]), t, np.full(4, 1000))
+    write_recording(tmp_path / "in.h5", Recording(ev.width, ev.height, events=ev, frames=frames, sensor="SYN"))
+    ck = _checkpoint(tmp_path / "m.pt", image_channels)
+    threads = torch.get_num_threads()
+    outs = {}
+    try:
+        torch.set_num_threads(2)
+        for workers in (1, 2, 3):
+            out = tmp_path / f"o{workers}.h5"
+            assert main(["restore", str(tmp_path / "in.h5"), str(out), "--checkpoint", str(ck), "--no-progress",
+                         "--set", f"restore.workers={workers}", "--set", "restore.device=cpu",
+                         "--set", "voxel.bins=4"]) == 0
+            assert torch.get_num_threads() == 2
+            outs[workers] = (read_recording(out).events.array, json.loads(out.with_suffix(".json").read_text()))
+    finally:
+        torch.set_num_threads(threads)
+    base, info1 = outs[1]
+    assert info1["workers"] == 1 and info1["windows"] >= 4 and 0 < len(base) != len(ev)
+    for workers in (2, 3):
+        arr, info = outs[workers]
+        assert info["workers"] == workers
+        np.testing.assert_array_equal(arr, base)
+        for key in ("events_in", "events_out", "events_not_recorded", "scores", "hot_pixels"):
+            assert info[key] == info1[key], key
+
+
+def test_ordered_map_keeps_the_order_and_bounds_what_it_takes_ahead():
+    import threading
+    import time
+
+    from rdnet.restore.stream import ordered_map
+    taken = []
+
+    def items():
+        for i in range(12):
+            taken.append(i)
+            yield i
+
+    def slow_first(i):                     # later items finish first
+        time.sleep(0.02 if i % 3 == 0 else 0.0)
+        return i * i, threading.current_thread().name
+
+    for workers in (1, 3):
+        taken.clear()
+        seen = []
+        for i, (sq, name) in ordered_map(slow_first, items(), workers):
+            assert len(taken) <= i + 1 + 2 * workers       # at most 2 x workers ahead
+            seen.append((i, sq, name))
+        assert [s[:2] for s in seen] == [(i, i * i) for i in range(12)]
+        names = {s[2] for s in seen}
+        assert (names == {threading.current_thread().name}) == (workers == 1)
+
+    def boom(i):
+        if i == 4:
+            raise ValueError("window 4")
+        return i
+    with pytest.raises(ValueError, match="window 4"):
+        list(ordered_map(boom, range(10), 2))
+
+
+def test_workers_zero_takes_a_window_per_thread_on_small_sensors_only(tmp_path):
+    from rdnet.restore.learned import WINDOW_PER_THREAD_MAX_PIXELS
+    r = load_restorer(_checkpoint(tmp_path / "m.pt"), has_frames=True, params=PARAMS)
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        for workers, pixels, want, inside in ((0, 346 * 260, 2, 1), (0, WINDOW_PER_THREAD_MAX_PIXELS + 1, 1, 2),
+                                              (1, 346 * 260, 1, 2), (3, 1280 * 720, 3, 1)):
+            with r.parallel(workers, pixels) as n:
+                assert n == want and torch.get_num_threads() == inside
+            assert torch.get_num_threads() == 2
+        r.device = "cuda"                                   # only the choice: no GPU needed
+        with r.parallel(2, 100) as n:
+            assert n == 1
+    finally:
+        torch.set_num_threads(threads)
