@@ -403,8 +403,9 @@ def drop_unsupported(index: np.ndarray, counts: np.ndarray, shape: tuple, decisi
 
 #: the largest share of a window's pixels with support (:func:`input_support`) at which
 #: :func:`sparse_decided_entries` computes the occupancy logits pixel by pixel instead of by
-#: the dense conv (measured: benchmarks/results/restore_gated_logits.json)
-GATED_MAX_SUPPORT = 0.25
+#: the dense conv: at a DAVIS346 window's size the two cost the same at 10-25 % of the pixels
+#: (``benchmarks/bench_gated_logits.py``; a DAVIS346 window has 1.6 %)
+GATED_MAX_SUPPORT = 0.1
 
 
 def sparse_decided_entries(stage1, image, counts, decision: Mapping | None) -> tuple[np.ndarray, np.ndarray]:

@@ -63,8 +63,8 @@ night file 77 -> 57 s; the same events on both). Two more (2026-11-30): with a d
 that applies the support rule (every study restorer's), a window whose supported pixels are
 at most :data:`rdnet.nn.decision.GATED_MAX_SUPPORT` of the frame (a DAVIS346 window: 1.6 %
 on average, 2.7 % at most) gets its occupancy logits at those pixels alone
-(``sparse_heads(pixels=...)``) instead of from the dense conv and mask that were about a
-fifth of its time; and on the CPU several windows run at once, one per torch thread
+(``sparse_heads(pixels=...)``) instead of from the dense conv, the costliest operation of the
+window (5.3 of 33 ms in torch's profiler); and on the CPU several windows run at once, one per torch thread
 (:meth:`LearnedRestorer.parallel`, ``restore.workers``), since on these shared 2 cores one
 window on both threads ran at 30 or at 50 ms depending on the host's other load, one window
 per core at 27-30 ms (in-process, alternated). Both give the same events as before on the

@@ -162,7 +162,7 @@ def test_every_decision_path_applies_the_count_gain_alike():
 def test_logits_at_the_supported_pixels_alone_keep_the_dense_decision(channels_last, monkeypatch):
     import rdnet.nn.decision as decision_mod
     net = perturbed_count_net(5, 0.3)
-    x, img = count_inputs(0.005)             # few events: 17 % of the pixels supported
+    x, img = count_inputs(0.002)             # few events: 3 % of the pixels supported
     supported = input_support(x)[0, 0]
     assert 0 < supported.mean() <= decision_mod.GATED_MAX_SUPPORT
     if channels_last:
