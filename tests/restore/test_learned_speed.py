@@ -293,3 +293,40 @@ def test_workers_zero_takes_a_window_per_thread_on_small_sensors_only(tmp_path):
             assert n == 1
     finally:
         torch.set_num_threads(threads)
+
+
+def test_an_error_in_a_window_thread_exits_2_with_no_output(tmp_path, monkeypatch, capsys):
+    """A user error raised while windows run at once (here: the third window's restore call)
+    reaches the CLI as one line and exit 2, neither output file is left, and torch's thread
+    count is back."""
+    from rdnet.cli import main
+    from rdnet.errors import ValidationError
+    from rdnet.events import Recording
+    from rdnet.events.io import write_recording
+    from rdnet.restore.learned import LearnedRestorer
+    ev, _ = edge_noise_hot(seed=3)
+    write_recording(tmp_path / "in.h5", Recording(ev.width, ev.height, events=ev, sensor="SYN"))
+    ck = _checkpoint(tmp_path / "m.pt", 0)
+    real = LearnedRestorer.restore
+    calls = []
+
+    def third_fails(self, events, t0_us, t1_us, frame):
+        calls.append(t0_us)
+        if len(calls) == 3:
+            raise ValidationError("window", "a bad window")
+        return real(self, events, t0_us, t1_us, frame)
+    monkeypatch.setattr(LearnedRestorer, "restore", third_fails)
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        rc = main(["restore", str(tmp_path / "in.h5"), str(tmp_path / "o.h5"), "--checkpoint", str(ck),
+                   "--no-progress", "--set", "restore.workers=2", "--set", "restore.device=cpu",
+                   "--set", "voxel.bins=4"])
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(threads)
+    err = capsys.readouterr().err
+    assert rc == 2 and "a bad window" in err and "Traceback" not in err
+    assert len(calls) >= 3
+    assert not (tmp_path / "o.h5").exists() and not (tmp_path / "o.json").exists()
+    assert not list(tmp_path.glob(".*.tmp")) and not list(tmp_path.glob("*.tmp"))
