@@ -37,6 +37,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_restore import ROOT, repeated_h5, run_one  # noqa: E402
 
+from rdnet.events.io import read_recording  # noqa: E402
+
 log = logging.getLogger("bench_restore_workers")
 SHARED = ROOT.parent / "shared" / "real"
 SOURCES = {"davis346_x10": (ROOT / "data" / "real" / "davis346_road" / "davis346.aedat4", 10),
@@ -83,7 +85,6 @@ def main() -> None:
                     row.update({"round": rnd, "workers_setting": w,
                                 "restore_loop_realtime_factor": row["duration_s"] / row["restore_loop_s"]})
                     if rnd == 0:
-                        from rdnet.events.io import read_recording
                         first[w] = read_recording(work / f"{path.stem}_rdnet.h5").events.array
                     result["recordings"][name]["runs"].append(row)
                     log.info("%s round %d workers=%d: loop %.2f s (%.2fx real time), wall %.2f s", name, rnd, w,

@@ -26,7 +26,10 @@ class Restorer(Protocol):
     "rdnet-image", "rdnet-events"; ``needs_frames``: refuses recordings without frames;
     ``window_us``: the window length it wants (None: any). Optional attribute ``info``
     (dict): what to record about it in OUT.json (model path, kind, training config and
-    metrics for a learned one)."""
+    metrics for a learned one). Optional method ``parallel(workers, sensor_pixels)``: a
+    context manager yielding how many windows may be restored at once inside it (the
+    learned restorer's :meth:`~rdnet.restore.learned.LearnedRestorer.parallel`; a restorer
+    without it, or one that carries state from window to window, gets them one at a time)."""
 
     name: str
     needs_frames: bool

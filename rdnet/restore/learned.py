@@ -64,8 +64,8 @@ that applies the support rule (every study restorer's), a window whose supported
 at most :data:`rdnet.nn.decision.GATED_MAX_SUPPORT` of the frame (a DAVIS346 window: 1.6 %
 on average, 2.7 % at most) gets its occupancy logits at those pixels alone
 (``sparse_heads(pixels=...)``) instead of from the dense conv, the costliest operation of the
-window (5.3 of 33 ms in torch's profiler); and on the CPU several windows run at once, one per torch thread
-(:meth:`LearnedRestorer.parallel`, ``restore.workers``), since on these shared 2 cores one
+window (5.3 of 33 ms in torch's profiler); and on the CPU several windows run at once, one per
+torch thread (:meth:`LearnedRestorer.parallel`, ``restore.workers``), since on these shared 2 cores one
 window on both threads ran at 30 or at 50 ms depending on the host's other load, one window
 per core at 27-30 ms (in-process, alternated). Both give the same events as before on the
 DAVIS346, DVXplorer, sparklers and night files (``benchmarks/results/restore_workers.json``
@@ -75,7 +75,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
 
@@ -160,20 +160,22 @@ class LearnedRestorer:
     #: False: each voxel raised to at least its input events, every input event in the
     #: output (``restore.delete_events``)
     delete_events: bool = True
-    #: numba threads per window while :meth:`parallel` hands out windows (None: numba's own)
-    _numba_threads: int | None = field(default=None, init=False, repr=False, compare=False)
 
     @contextlib.contextmanager
     def parallel(self, workers: int = 0, sensor_pixels: int = 0):
         """Inside, :meth:`restore` may be called for several windows at once: yields how many
         (``workers``; 0 = one per torch thread on a sensor of at most
         :data:`WINDOW_PER_THREAD_MAX_PIXELS` pixels, else 1), with torch's intra-op threads
-        (and numba's, per window) shared among them, and restores the thread count on exit.
+        shared among them, and restores the thread count on exit (numba's layer-norm kernel
+        keeps its own: one or two numba threads per window timed the same, 29.1 against
+        29.2 ms a DAVIS346 window, ``benchmarks/restore_window_numba_threads.py``).
         1 (one window at a time, every thread on it) on a GPU, with one thread, or when the
         numba kernel of :class:`rdnet.nn.blocks.LayerNorm2d` cannot be called concurrently.
         A window's events do not depend on how many run at once. On 2 cores a window per
         core was faster up to 640 x 480 and slower at 1280 x 720, where one window's
-        operations are large enough to share out (``benchmarks/results/restore_workers.json``)."""
+        operations are large enough to share out (``benchmarks/results/restore_workers.json``):
+        the finding behind :func:`rdnet.calib.calibrate.numba_threads`, short pieces of work
+        run fastest single-threaded on shared cores, at the level of whole windows."""
         import torch
         threads = torch.get_num_threads()
         n = int(workers) if workers else threads if sensor_pixels <= WINDOW_PER_THREAD_MAX_PIXELS else 1
@@ -185,14 +187,11 @@ class LearnedRestorer:
             log.info("numba's workqueue threading layer cannot run windows concurrently: one at a time")
             yield 1
             return
-        per = max(1, threads // n)
-        torch.set_num_threads(per)
-        self._numba_threads = per
+        torch.set_num_threads(max(1, threads // n))
         try:
             yield n
         finally:
             torch.set_num_threads(threads)
-            self._numba_threads = None
 
     @property
     def output(self) -> str:
@@ -242,9 +241,6 @@ class LearnedRestorer:
         from rdnet.nn.decision import sparse_decided_entries
         from rdnet.nn.sparse import SPARSE_MAX_DENSITY, SparseVoxels
 
-        if self._numba_threads is not None:      # per thread: set in each window's thread
-            import numba
-            numba.set_num_threads(min(self._numba_threads, numba.config.NUMBA_NUM_THREADS))
         t0_us, t1_us = int(t0_us), int(t1_us)
         if t1_us <= t0_us:
             raise ValidationError("window", f"t1_us {t1_us} must be after t0_us {t0_us}")

@@ -186,8 +186,8 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
 
             # a learned restorer on the CPU takes several windows at once (restore.workers);
             # everything else here runs in this thread, window by window in order
-            parallel = getattr(restorer, "parallel", None)
-            at_once = parallel(cfg.workers, src.width * src.height) if parallel is not None else contextlib.nullcontext(1)
+            parallel = getattr(restorer, "parallel", None)      # optional (rdnet.restore.base.Restorer)
+            at_once = contextlib.nullcontext(1) if parallel is None else parallel(cfg.workers, src.width * src.height)
             with at_once as workers:
                 restored = ordered_map(lambda w: restorer.restore(w[3], w[0], w[1], w[4]),
                                        windows_to_restore(), workers)
