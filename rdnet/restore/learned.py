@@ -74,7 +74,10 @@ for the settings, ``restore_learned_speed_ab_gated_workers.json`` against the pr
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import json
 import logging
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
@@ -135,6 +138,45 @@ def prepare_for_inference(net, device, channels_last: bool | None = None) -> boo
     return bool(channels_last)
 
 
+class DecisionMemo:
+    """The decided voxel entries of windows restored already, for restoring the same recording
+    again with the same network and decision and another post-filter: ``restore_real`` writes
+    the learned restorer's output, its deletions only (``restore.add_events: false``) and its
+    additions only (``restore.delete_events: false``), whose windows all take the same decision
+    before the filter. Give one memo to each of those runs (``restore_recording(memo=...)``):
+    the first computes a window's entries, the others read them. An entry is known by the
+    restorer's fingerprint (:meth:`LearnedRestorer.share_decisions`: checkpoint source,
+    decision, voxel settings, device and memory layout), the window's bounds and a digest of
+    its input events and image, so a run with another network, or whose input differs
+    (without the hot-pixel pass), computes and adds its own. Thread-safe (windows restored at
+    once, :meth:`LearnedRestorer.parallel`)."""
+
+    def __init__(self):
+        self._entries: dict = {}
+        self._lock = threading.Lock()
+        #: windows computed, and windows read from the memo
+        self.computed = self.reused = 0
+
+    @staticmethod
+    def key(fingerprint: str, t0_us: int, t1_us: int, events: Events, frame: np.ndarray | None) -> tuple:
+        h = hashlib.blake2b(np.ascontiguousarray(events.array).tobytes(), digest_size=16)
+        if frame is not None:
+            h.update(np.ascontiguousarray(frame).tobytes())
+        return fingerprint, int(t0_us), int(t1_us), len(events), h.hexdigest()
+
+    def get(self, key: tuple):
+        with self._lock:
+            hit = self._entries.get(key)
+            if hit is not None:
+                self.reused += 1
+            return hit
+
+    def put(self, key: tuple, entries: tuple) -> None:
+        with self._lock:
+            self._entries[key] = entries
+            self.computed += 1
+
+
 @dataclass
 class LearnedRestorer:
     """A trained RestoreNet and its decision (structurally a
@@ -160,6 +202,20 @@ class LearnedRestorer:
     #: False: each voxel raised to at least its input events, every input event in the
     #: output (``restore.delete_events``)
     delete_events: bool = True
+    #: decided entries shared with other runs on the same recording (:class:`DecisionMemo`;
+    #: count output only) and this restorer's key in it; set by :meth:`share_decisions`
+    memo: DecisionMemo | None = None
+    memo_fingerprint: str = ""
+
+    def share_decisions(self, memo: DecisionMemo) -> None:
+        """Take and give the decided entries of each window through ``memo`` (count output
+        only; a signed-output restorer ignores it)."""
+        if self.output != "counts":
+            return
+        d = json.dumps(self.decision or {}, sort_keys=True, default=str)
+        self.memo_fingerprint = (f"{self.source}|{d}|{self.bins}|{self.mode}|{self.needs_frames}|"
+                                 f"{self.device}|{self.channels_last}")
+        self.memo = memo
 
     @contextlib.contextmanager
     def parallel(self, workers: int = 0, sensor_pixels: int = 0):
@@ -250,20 +306,30 @@ class LearnedRestorer:
         ev = events.slice_time(t0_us, t1_us)            # half-open: back-to-back windows share nothing
         dur = t1_us - t0_us
         split = self.output == "counts"
-        if split:        # the non-zero voxels; the dense grid only for a dense window (rdnet.nn.sparse)
-            index, values, shape = voxel_entries(ev, self.bins, t0_us, dur, mode=self.mode, polarity="split")
-            x = SparseVoxels.of(index, values, shape, self.channels_last)
-            if x.density > SPARSE_MAX_DENSITY:
-                x = x.dense(self.device)
-        else:
-            grid = voxel_grid(ev, self.bins, t0_us, dur, mode=self.mode, polarity="signed")
-            x = self._tensor(grid.reshape(1, -1, H, W))
-        img = self._tensor(self._image(frame, H, W)) if self.net.image_channels else None
+        guided = bool(self.net.image_channels)
+        # the decided entries of this very window, when another run on the recording has them
+        key = None if self.memo is None or not split else \
+            DecisionMemo.key(self.memo_fingerprint, t0_us, t1_us, ev, frame if guided else None)
+        decided = None if key is None else self.memo.get(key)
+        if decided is None:
+            if split:    # the non-zero voxels; the dense grid only for a dense window (rdnet.nn.sparse)
+                index, values, shape = voxel_entries(ev, self.bins, t0_us, dur, mode=self.mode, polarity="split")
+                x = SparseVoxels.of(index, values, shape, self.channels_last)
+                if x.density > SPARSE_MAX_DENSITY:
+                    x = x.dense(self.device)
+            else:
+                grid = voxel_grid(ev, self.bins, t0_us, dur, mode=self.mode, polarity="signed")
+                x = self._tensor(grid.reshape(1, -1, H, W))
+            img = self._tensor(self._image(frame, H, W)) if guided else None
         own_times = self.times == "input"
         entries = own_times or not self.add_events or not self.delete_events
         with torch.inference_mode():
             if split:
-                index, counts = sparse_decided_entries(self.net, img, x, self.decision)
+                if decided is None:
+                    decided = sparse_decided_entries(self.net, img, x, self.decision)
+                    if key is not None:
+                        self.memo.put(key, decided)
+                index, counts = decided
                 shape = (2, self.bins, H, W)
             else:
                 out = self.net(img, x)[0].contiguous().cpu().numpy()

@@ -109,6 +109,7 @@ def score_recording(name: str, path: Path, params: Mapping, runs: Sequence[Run],
     from rdnet.errors import ModelNotFoundError
     from rdnet.eval.noref import ACTIVITY_MASK, activity_mask, mask_fractions, pixel_mask
     from rdnet.events.io import load
+    from rdnet.restore.learned import DecisionMemo
     from rdnet.restore.run import json_path_for, restore_recording
 
     facts = facts or RecordingFacts()
@@ -126,6 +127,9 @@ def score_recording(name: str, path: Path, params: Mapping, runs: Sequence[Run],
              "activity_mask": dict(ACTIVITY_MASK), "hot_pixels": hot or [], "methods": {}}
     out_dir.mkdir(parents=True, exist_ok=True)
     outs = {}
+    # the learned runs share the decided entries of each window: the deletions-only and
+    # additions-only rows take the same decision as the learned restorer before their filter
+    memo = DecisionMemo()
     for run in runs:
         if run.method == "gef" and not entry["has_frames"]:
             continue
@@ -133,7 +137,7 @@ def score_recording(name: str, path: Path, params: Mapping, runs: Sequence[Run],
         run_params = {**params, "restore": {**params.get("restore", {}), **run.restore}}
         try:
             res = restore_recording(path, out, run_params, method=run.method, checkpoint=run.checkpoint,
-                                    progress=False, sensor_size=size)
+                                    progress=False, sensor_size=size, memo=memo)
         except ModelNotFoundError as e:               # a broken model fails; an absent one
             log.warning("%s: method %s skipped: %s", name, run.key, e)   # only loses its row
             continue

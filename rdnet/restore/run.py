@@ -121,9 +121,12 @@ MANY_ADDED = 1.5
 
 def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *, method: str | None = None,
                       checkpoint: str | Path | None = None, progress: bool = True,
-                      sensor_size: tuple[int, int] | None = None) -> dict:
+                      sensor_size: tuple[int, int] | None = None, memo=None) -> dict:
     """Run ``rdnet restore`` (module docstring); returns the OUT.json content.
-    ``sensor_size`` (width, height): for formats that do not store it (text)."""
+    ``sensor_size`` (width, height): for formats that do not store it (text). ``memo``: a
+    :class:`rdnet.restore.learned.DecisionMemo` shared by runs of the same learned restorer
+    on this recording that differ only after its decision (``restore.add_events``,
+    ``restore.delete_events``); other restorers ignore it."""
     from tqdm import tqdm
 
     from rdnet.events.io._common import atomic_output
@@ -142,6 +145,8 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
         frames = src.frames()
         has_frames = frames is not None and len(frames) > 0
         restorer = get_restorer(method, params, checkpoint, has_frames=has_frames)
+        if memo is not None and hasattr(restorer, "share_decisions"):
+            restorer.share_decisions(memo)
         if restorer.needs_frames and not has_frames:
             raise FormatError(recording, "frames", f"method {restorer.name} needs frames; the recording has none")
         window_us = int(restorer.window_us or cfg.window_us)
