@@ -172,6 +172,9 @@ class DecisionMemo:
             return hit
 
     def put(self, key: tuple, entries: tuple) -> None:
+        """Keep ``entries`` (the decided ``(index, counts)``), read-only: every run reads them."""
+        for a in entries:
+            a.flags.writeable = False
         with self._lock:
             self._entries[key] = entries
             self.computed += 1

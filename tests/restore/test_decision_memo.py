@@ -49,6 +49,8 @@ def test_shared_decisions_write_the_same_events_and_reuse_every_window(tmp_path)
     assert windows >= 4 and memo.computed == 2 * windows
     # the deletions-only and additions-only runs read every window of the first run
     assert memo.reused == 2 * windows
+    # what the runs share cannot be changed by one of them
+    assert all(not a.flags.writeable for entries in memo._entries.values() for a in entries)
     # the variants are not all the same stream (the filters act)
     assert len({a.tobytes() for a in alone.values()}) >= 3
 
