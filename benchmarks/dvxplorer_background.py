@@ -41,16 +41,33 @@ RECORDING = ROOT.parent / "shared" / "real" / "dvxplorer_person" / "dvxplorer.ae
 BANDS_PX = ((0, 5), (5, 15), (15, 40), (40, None))
 
 
-def main(argv=None) -> int:
+def take_without_hot_pixels(recording: Path, cfg):
+    """The take as ``restore_real`` scores it: ``(events, hot, act, dist_px, span)`` -- its
+    events without the hot pixels the ``restore`` section's hot-pixel pass flags (``cfg``: a
+    RestoreConfig), that (H, W) hot-pixel mask, the activity mask of the remaining events
+    (:func:`rdnet.eval.noref.activity_mask`), every pixel's distance to it (0 inside) and the
+    first and last timestamps of the take as recorded (hot pixels included)."""
     from scipy.ndimage import distance_transform_edt
 
-    from rdnet.baselines.baf import baf_mask
-    from rdnet.config import load_params, section
-    from rdnet.eval.noref import ACTIVITY_MASK as MASK
-    from rdnet.eval.noref import activity_mask
+    from rdnet.eval.noref import ACTIVITY_MASK, activity_mask
     from rdnet.events.core import Events
     from rdnet.events.io.dispatch import load
     from rdnet.restore.hotpixels import hot_pixels, pixel_counts
+
+    ev = load(recording).events
+    span = int(ev.t[0]), int(ev.t[-1])
+    counts, dur = pixel_counts([ev], ev.width, ev.height)
+    hot = hot_pixels(counts, dur, cfg.hot_pixel_factor, cfg.hot_pixel_min_hz)
+    ev = Events(ev.array[~hot[ev.y, ev.x]], ev.width, ev.height)
+    act = activity_mask(ev, **ACTIVITY_MASK)
+    return ev, hot, act, distance_transform_edt(~act), span
+
+
+def main(argv=None) -> int:
+    from rdnet.baselines.baf import baf_mask
+    from rdnet.config import load_params, section
+    from rdnet.eval.noref import ACTIVITY_MASK as MASK
+    from rdnet.events.core import Events
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--recording", type=Path, default=RECORDING)
@@ -60,15 +77,10 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     cfg = section(load_params(ROOT / "params.yaml"), "restore")
 
-    ev = load(args.recording).events
+    ev, hot, act, dist_px, (t0, t1) = take_without_hot_pixels(args.recording, cfg)
     W, H = ev.width, ev.height
-    t0, t1 = int(ev.t[0]), int(ev.t[-1])
-    counts, dur = pixel_counts([ev], W, H)
-    hot = hot_pixels(counts, dur, cfg.hot_pixel_factor, cfg.hot_pixel_min_hz)
-    ev = Events(ev.array[~hot[ev.y, ev.x]], W, H)
-    act = activity_mask(ev, **MASK)
     bg = ~act[ev.y, ev.x]
-    dist = distance_transform_edt(~act)[ev.y, ev.x]
+    dist = dist_px[ev.y, ev.x]
     kept = baf_mask(ev, cfg.baf_dt_us)
     # the control: background timestamps uniform over the recording, activity events as they are
     arr = ev.array.copy()
@@ -79,7 +91,6 @@ def main(argv=None) -> int:
     kept_shuffled[order] = baf_mask(Events(arr[order], W, H), cfg.baf_dt_us)
 
     seconds = (t1 - t0) * 1e-6
-    dist_px = distance_transform_edt(~act)              # per pixel (0 inside the mask)
     out_dist = None
     if not args.no_restorer:
         out_dist = _restored_distances(args.recording, dist_px, hot)
@@ -100,7 +111,7 @@ def main(argv=None) -> int:
             om = (out_dist >= lo) & ((out_dist < hi) if hi is not None else True)
             row["restorer_out_over_in"] = float(om.sum() / max(int(m.sum()), 1))
         rows.append(row)
-    busy = counts[~act & ~hot]
+    busy = np.bincount(ev.y.astype(np.int64) * W + ev.x, minlength=W * H).reshape(H, W)[~act & ~hot]
     result = {"recording": str(args.recording.relative_to(ROOT.parent)), "hot_pixels_removed": int(hot.sum()),
               "activity_mask": MASK, "baf_dt_us": cfg.baf_dt_us, "seconds": seconds,
               "activity_kept_by_baf": float(kept[~bg].mean()),

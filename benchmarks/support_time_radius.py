@@ -7,7 +7,9 @@ take). BAF asks for a neighbour within 10 ms before the event. This script count
 of the take (the activity mask of ``restore_real`` and distance bands outside it, as
 ``benchmarks/dvxplorer_background.py`` draws them; hot pixels removed first), the share of
 events that have an input event at a neighbouring pixel within +-k bins of their own bin of
-the window, for k = 0, 1, 2, 4 and 9 (9: anywhere in the window, the study's rule). A share
+the window, for k = 0, 1, 2, 4 and 9 (9: anywhere in the window, the study's rule; the
+neighbour test is :func:`rdnet.nn.decision.neighbour_support`, the take as
+``dvxplorer_background.take_without_hot_pixels`` prepares it). A share
 is an upper bound of what a restorer with that rule can keep: the network decides among the
 supported events only. DAVIS346 (the whole stream, with its 40 ms frame windows) is the
 check on a recording whose events are mostly signal.
@@ -19,12 +21,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-DVXPLORER = ROOT.parent / "shared" / "real" / "dvxplorer_person" / "dvxplorer.aedat4"
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from dvxplorer_background import RECORDING as DVXPLORER, take_without_hot_pixels  # noqa: E402
+
 DAVIS346 = ROOT / "data" / "real" / "davis346_road" / "davis346.aedat4"
 RADII = (0, 1, 2, 4, 9)
 BINS = 10
@@ -32,8 +37,12 @@ BINS = 10
 
 def supported(ev, window_us: int, k: int) -> np.ndarray:
     """(n,) bool: whether each event has an input event at one of its 8 neighbouring pixels
-    within +-``k`` bins of its own bin (``BINS`` bins per window of ``window_us``)."""
+    within +-``k`` bins of its own bin (``BINS`` bins per window of ``window_us``): the
+    decision's rule (:func:`rdnet.nn.decision.neighbour_support`) on each bin's occupancy
+    dilated by +-``k`` bins in time."""
     from scipy.ndimage import maximum_filter
+
+    from rdnet.nn.decision import neighbour_support
     H, W = ev.height, ev.width
     t0 = int(ev.t[0])
     win = (ev.t - t0) // window_us
@@ -45,22 +54,14 @@ def supported(ev, window_us: int, k: int) -> np.ndarray:
             continue
         occ = np.zeros((BINS, H, W), bool)
         occ[b[a:z], ev.y[a:z], ev.x[a:z]] = True
-        near = maximum_filter(occ, size=(2 * k + 1, 1, 1))
-        pad = np.zeros((BINS, H + 2, W + 2), np.int16)
-        pad[:, 1:-1, 1:-1] = near
-        total = sum(pad[:, dy:dy + H, dx:dx + W] for dy in range(3) for dx in range(3)) - near
-        out[a:z] = total[b[a:z], ev.y[a:z], ev.x[a:z]] > 0
+        near = neighbour_support(maximum_filter(occ, size=(2 * k + 1, 1, 1)))
+        out[a:z] = near[b[a:z], ev.y[a:z], ev.x[a:z]]
     return out
 
 
 def main(argv=None) -> int:
-    from scipy.ndimage import distance_transform_edt
-
     from rdnet.config import load_params, section
-    from rdnet.eval.noref import ACTIVITY_MASK, activity_mask
-    from rdnet.events.core import Events
     from rdnet.events.io.dispatch import load
-    from rdnet.restore.hotpixels import hot_pixels, pixel_counts
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--dvxplorer", type=Path, default=DVXPLORER)
@@ -71,12 +72,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     cfg = section(load_params(ROOT / "params.yaml"), "restore")
 
-    ev = load(args.dvxplorer).events
-    counts, dur = pixel_counts([ev], ev.width, ev.height)
-    hot = hot_pixels(counts, dur, cfg.hot_pixel_factor, cfg.hot_pixel_min_hz)
-    ev = Events(ev.array[~hot[ev.y, ev.x]], ev.width, ev.height)
-    act = activity_mask(ev, **ACTIVITY_MASK)
-    dist = distance_transform_edt(~act)[ev.y, ev.x]
+    ev, hot, _, dist_px, _ = take_without_hot_pixels(args.dvxplorer, cfg)
+    dist = dist_px[ev.y, ev.x]
     regions = {"activity (person)": dist == 0, "background": dist > 0, "background 0-15 px": (dist > 0) & (dist < 15),
                "background 15-40 px": (dist >= 15) & (dist < 40), "background >= 40 px": dist >= 40}
     rows = []
