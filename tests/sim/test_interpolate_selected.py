@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from rdnet.errors import ConfigError, ValidationError
-from rdnet.sim.interpolate import InterpolateConfig, PairInterpolator, flow_weight, upsample_all
+from rdnet.sim.interpolate import InterpolateConfig, PairInterpolator, flow_weight, select_centres, upsample_all
 from rdnet.sim.scenes import procedural_texture
 
 
@@ -81,6 +81,36 @@ def test_a_still_shadow_edge_stays_put_while_the_texture_moves():
     assert err["selected"] < 0.5 * err["flow"], err
 
 
+def test_select_centres_known_values():
+    np.testing.assert_array_equal(select_centres(2, 16), [])                  # no inner frame
+    np.testing.assert_array_equal(select_centres(10, 0), np.arange(1, 9))     # 0: every inner frame
+    np.testing.assert_array_equal(select_centres(10, 8), np.arange(1, 9))     # as many as there are
+    np.testing.assert_array_equal(select_centres(10, 50), np.arange(1, 9))
+    np.testing.assert_array_equal(select_centres(10, 3), [1, 4, 8])           # linspace(1, 8, 3), rounded
+    np.testing.assert_array_equal(select_centres(10, 1), [1])
+    c = select_centres(59, 16)                                                # DAVIS346 road: 59 frames
+    assert len(c) == 16 and c[0] == 1 and c[-1] == 57 and np.all(np.diff(c) >= 3)
+
+
+def test_select_frames_predicts_only_the_chosen_frames(texture, monkeypatch):
+    """``select_frames`` bounds the work (two flows per predicted frame) and, on a uniform
+    translation, makes the same choice as every frame; at least the inner frames' number is
+    every frame, bit for bit."""
+    import rdnet.sim.interpolate as ip
+    moving = _moving(texture, 12, 2.0)
+    t = np.arange(12, dtype=np.int64) * 10_000
+    calls = []
+    real = ip._flow_of_u8
+    monkeypatch.setattr(ip, "_flow_of_u8", lambda a, b, cfg: calls.append(1) or real(a, b, cfg))
+    every = flow_weight(moving, t, InterpolateConfig(method="selected", select_frames=0))
+    assert len(calls) == 2 * 10
+    calls.clear()
+    three = flow_weight(moving, t, InterpolateConfig(method="selected", select_frames=3))
+    assert len(calls) == 2 * 3
+    np.testing.assert_array_equal(flow_weight(moving, t, InterpolateConfig(method="selected", select_frames=10)), every)
+    assert every[8:-8, 8:-8].mean() > 0.9 and three[8:-8, 8:-8].mean() > 0.9
+
+
 def test_sampled_grid_equals_the_full_frame_sampled(texture):
     frames = _moving(texture, 4, 2.5)
     t = np.arange(4, dtype=np.int64) * 10_000
@@ -113,6 +143,9 @@ def test_bad_settings_and_weight_shape():
         InterpolateConfig(method="selected", select_sigma_px=0)
     with pytest.raises(ConfigError, match="interpolate.method"):
         InterpolateConfig(method="chosen")
+    for bad in (-1, 2.5, True, "16"):
+        with pytest.raises(ConfigError, match="interpolate.select_frames"):
+            InterpolateConfig(method="selected", select_frames=bad)
     f = np.zeros((16, 16), np.float32)
     with pytest.raises(ValidationError, match="flow_weight"):
         PairInterpolator(f, f, InterpolateConfig(method="selected"), np.ones((8, 8), np.float32))
