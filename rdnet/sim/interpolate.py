@@ -116,7 +116,10 @@ UPPER_BOUNDS = {
     "log_eps": SENSOR_UPPER_BOUNDS["log_eps"],
     # a Gaussian pooling wider than 256 px averages over most of any frame, so the choice is no
     # longer local, and OpenCV's kernel grows as 6-8 sigma (1e300 gave a traceback)
-    "select_sigma_px": 256.0}
+    "select_sigma_px": 256.0,
+    # predicted frames for that choice: any number at least the inner frames' is every frame
+    # (as 0 is); a million is over 11 hours of 25 fps frames
+    "select_frames": 1_000_000}
 #: a bound finer than the smallest contrast threshold only costs frames
 LOWER_BOUNDS = {"max_log_step": SENSOR_LOWER_BOUNDS["threshold_on"]}
 
