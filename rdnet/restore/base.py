@@ -29,7 +29,10 @@ class Restorer(Protocol):
     metrics for a learned one). Optional method ``parallel(workers, sensor_pixels)``: a
     context manager yielding how many windows may be restored at once inside it (the
     learned restorer's :meth:`~rdnet.restore.learned.LearnedRestorer.parallel`; a restorer
-    without it, or one that carries state from window to window, gets them one at a time)."""
+    without it, or one that carries state from window to window, gets them one at a time).
+    Optional method ``share_decisions(memo)``: take and give each window's decision through
+    a :class:`~rdnet.restore.learned.DecisionMemo` shared by runs on the same recording
+    (``restore_recording(memo=...)``; a restorer without it computes every window)."""
 
     name: str
     needs_frames: bool

@@ -145,7 +145,7 @@ class DecisionMemo:
     additions only (``restore.delete_events: false``), whose windows all take the same decision
     before the filter. Give one memo to each of those runs (``restore_recording(memo=...)``):
     the first computes a window's entries, the others read them. An entry is known by the
-    restorer's fingerprint (:meth:`LearnedRestorer.share_decisions`: checkpoint source,
+    restorer's fingerprint (:meth:`LearnedRestorer.decision_fingerprint`: checkpoint source,
     decision, voxel settings, device and memory layout), the window's bounds and a digest of
     its input events and image, so a run with another network, or whose input differs
     (without the hot-pixel pass), computes and adds its own. Thread-safe (windows restored at
@@ -206,19 +206,21 @@ class LearnedRestorer:
     #: output (``restore.delete_events``)
     delete_events: bool = True
     #: decided entries shared with other runs on the same recording (:class:`DecisionMemo`;
-    #: count output only) and this restorer's key in it; set by :meth:`share_decisions`
+    #: count output only); set by :meth:`share_decisions`
     memo: DecisionMemo | None = None
-    memo_fingerprint: str = ""
 
     def share_decisions(self, memo: DecisionMemo) -> None:
         """Take and give the decided entries of each window through ``memo`` (count output
         only; a signed-output restorer ignores it)."""
-        if self.output != "counts":
-            return
+        if self.output == "counts":
+            self.memo = memo
+
+    def decision_fingerprint(self) -> str:
+        """What the decided entries of a window depend on besides its input: the checkpoint,
+        the decision, the voxel settings, the device and the memory layout (the key of
+        :class:`DecisionMemo`)."""
         d = json.dumps(self.decision or {}, sort_keys=True, default=str)
-        self.memo_fingerprint = (f"{self.source}|{d}|{self.bins}|{self.mode}|{self.needs_frames}|"
-                                 f"{self.device}|{self.channels_last}")
-        self.memo = memo
+        return f"{self.source}|{d}|{self.bins}|{self.mode}|{self.needs_frames}|{self.device}|{self.channels_last}"
 
     @contextlib.contextmanager
     def parallel(self, workers: int = 0, sensor_pixels: int = 0):
@@ -312,7 +314,7 @@ class LearnedRestorer:
         guided = bool(self.net.image_channels)
         # the decided entries of this very window, when another run on the recording has them
         key = None if self.memo is None or not split else \
-            DecisionMemo.key(self.memo_fingerprint, t0_us, t1_us, ev, frame if guided else None)
+            DecisionMemo.key(self.decision_fingerprint(), t0_us, t1_us, ev, frame if guided else None)
         decided = None if key is None else self.memo.get(key)
         if decided is None:
             if split:    # the non-zero voxels; the dense grid only for a dense window (rdnet.nn.sparse)

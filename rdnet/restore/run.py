@@ -145,8 +145,9 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
         frames = src.frames()
         has_frames = frames is not None and len(frames) > 0
         restorer = get_restorer(method, params, checkpoint, has_frames=has_frames)
-        if memo is not None and hasattr(restorer, "share_decisions"):
-            restorer.share_decisions(memo)
+        share = getattr(restorer, "share_decisions", None)      # optional (rdnet.restore.base.Restorer)
+        if memo is not None and share is not None:
+            share(memo)
         if restorer.needs_frames and not has_frames:
             raise FormatError(recording, "frames", f"method {restorer.name} needs frames; the recording has none")
         window_us = int(restorer.window_us or cfg.window_us)
