@@ -68,6 +68,7 @@ def main(argv=None) -> int:
     from rdnet.config import load_params, section
     from rdnet.eval.noref import ACTIVITY_MASK as MASK
     from rdnet.events.core import Events
+    from rdnet.restore.hotpixels import pixel_counts
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--recording", type=Path, default=RECORDING)
@@ -111,7 +112,7 @@ def main(argv=None) -> int:
             om = (out_dist >= lo) & ((out_dist < hi) if hi is not None else True)
             row["restorer_out_over_in"] = float(om.sum() / max(int(m.sum()), 1))
         rows.append(row)
-    busy = np.bincount(ev.y.astype(np.int64) * W + ev.x, minlength=W * H).reshape(H, W)[~act & ~hot]
+    busy = pixel_counts([ev], W, H)[0][~act & ~hot]
     result = {"recording": str(args.recording.relative_to(ROOT.parent)), "hot_pixels_removed": int(hot.sum()),
               "activity_mask": MASK, "baf_dt_us": cfg.baf_dt_us, "seconds": seconds,
               "activity_kept_by_baf": float(kept[~bg].mean()),
