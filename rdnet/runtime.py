@@ -1,4 +1,5 @@
-"""Process-level settings for long CPU inference runs.
+"""Process-level settings: memory reuse for long CPU inference runs, and short work
+forked beside the main process (:class:`ForkedWorker`).
 
 glibc's malloc serves every allocation above its mmap threshold (at most 32 MB after its
 dynamic adjustment) with a fresh ``mmap`` and returns it with ``munmap`` when freed. A
@@ -12,10 +13,14 @@ the process keeps its peak heap until it exits. Nothing happens off glibc.
 """
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import logging
+import os
+import signal
 import sys
+from typing import Callable, Iterator
 
 log = logging.getLogger(__name__)
 
@@ -48,3 +53,149 @@ def keep_freed_memory() -> bool:
     if ok:
         log.debug("malloc keeps freed memory up to %d bytes for reuse", KEEP_BYTES)
     return ok
+
+
+
+class ChildFailed(RuntimeError):
+    """A :class:`ForkedWorker` exited with an error (its traceback went to stderr)."""
+
+
+def can_fork() -> bool:
+    """Whether :func:`forked_workers` forks here and now: on Linux only (macOS's system
+    libraries are not safe to use in a forked child of a threaded process; Windows has no
+    fork), and only while this process runs no other Python thread (a lock another thread
+    holds at the fork stays locked in the child for ever; a test session or a notebook that
+    ran thread pools before gets no fork, and the caller does the work itself)."""
+    import threading
+    return sys.platform.startswith("linux") and hasattr(os, "fork") and threading.active_count() == 1
+
+
+class ForkedWorker:
+    """A child process forked now that runs ``prepare()`` at once, then waits for one job,
+    ``fn(*args)``, sent by :meth:`submit` (pickled through a pipe), and exits.
+
+    For short work that holds the GIL and leaves only files, such as drawing figures with
+    matplotlib: forked before a long computation, the child imports what it needs on the
+    core the computation leaves idle, where an import thread would take the GIL from the
+    computation's own Python code (measured on ``rdnet calibrate``: as slow as importing
+    afterwards); several children then draw side by side. ``nice``: the child's niceness
+    increment (``os.nice``; 19 = it runs only on CPU time nobody else wants, as a worker that
+    prepares while its parent computes should). The child is a copy of this
+    process at the fork, so fork before other threads start (nothing of numba's or
+    OpenCV's pools is usable there). It ignores Ctrl-C (the parent kills it, see
+    :func:`forked_workers`) and leaves by ``os._exit``, running no atexit handler and
+    flushing none of the parent's buffers."""
+
+    #: the write ends of the pipes of this process's workers still waiting for a job
+    _parent_ends: set[int] = set()
+
+    def __init__(self, prepare: Callable[[], object] | None = None, *, nice: int = 0):
+        for stream in (sys.stdout, sys.stderr):    # nothing the parent buffered is written twice
+            with contextlib.suppress(AttributeError, OSError, ValueError):
+                stream.flush()
+        r, w = os.pipe()
+        pid = os.fork()
+        if pid == 0:
+            # this end, and those of workers forked before: a job's end of file comes when
+            # the parent closes it, not when a sibling that holds a copy exits
+            for fd in (w, *ForkedWorker._parent_ends):
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+            self._child(r, prepare, nice)        # never returns
+        os.close(r)
+        ForkedWorker._parent_ends.add(w)
+        self.pid: int | None = pid
+        self._w: int | None = w
+
+    @staticmethod
+    def _child(r: int, prepare, nice: int) -> None:
+        code = 1
+        try:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            if nice:
+                with contextlib.suppress(OSError):
+                    os.nice(nice)
+            if prepare is not None:
+                prepare()
+            with os.fdopen(r, "rb") as f:
+                data = f.read()                  # until the parent closes its end
+            if data:                             # nothing sent: the parent did not need us
+                import pickle
+                fn, args = pickle.loads(data)
+                fn(*args)
+            code = 0
+        except BaseException:
+            import traceback
+            traceback.print_exc()
+        finally:
+            with contextlib.suppress(BaseException):
+                sys.stderr.flush()
+            os._exit(code)
+
+    def submit(self, fn: Callable, *args) -> None:
+        """Send the job (``fn`` and ``args`` must pickle; ``fn`` by reference, so a function
+        of a module). At most once; :meth:`wait` for it."""
+        import pickle
+        if self._w is None:
+            raise RuntimeError("this worker has its job already")
+        data = pickle.dumps((fn, args), protocol=pickle.HIGHEST_PROTOCOL)
+        w, self._w = self._w, None
+        ForkedWorker._parent_ends.discard(w)
+        try:
+            with os.fdopen(w, "wb") as f:
+                f.write(data)
+        except BrokenPipeError:                  # the child died first: wait() says how
+            pass
+
+    def wait(self) -> None:
+        """Wait for the child (without a job it exits at once); :class:`ChildFailed` if it
+        failed."""
+        if self._w is not None:
+            ForkedWorker._parent_ends.discard(self._w)
+            os.close(self._w)
+            self._w = None
+        if self.pid is None:
+            return
+        _, status = os.waitpid(self.pid, 0)
+        self.pid = None
+        code = os.waitstatus_to_exitcode(status)
+        if code != 0:
+            raise ChildFailed(f"a forked worker failed (exit status {code}; its traceback is above)")
+
+    def kill(self) -> None:
+        """Stop the child now and reap it (on the way out of an error)."""
+        if self._w is not None:
+            ForkedWorker._parent_ends.discard(self._w)
+            with contextlib.suppress(OSError):
+                os.close(self._w)
+            self._w = None
+        if self.pid is not None:
+            with contextlib.suppress(OSError):
+                os.kill(self.pid, signal.SIGKILL)
+                os.waitpid(self.pid, 0)
+            self.pid = None
+
+
+@contextlib.contextmanager
+def forked_workers(n: int, prepare: Callable[[], object] | None = None, *, nice: int = 0,
+                   fork: bool = True) -> Iterator[list[ForkedWorker]]:
+    """``n`` :class:`ForkedWorker` (none where :func:`can_fork` is false, or with
+    ``fork=False``: the caller then does the work itself). Leaving the block waits for every
+    worker (:class:`ChildFailed` after all are reaped if one failed); leaving it by an
+    exception kills them first, so no file is written after the caller's clean-up."""
+    workers = [ForkedWorker(prepare, nice=nice) for _ in range(n)] if fork and n > 0 and can_fork() else []
+    try:
+        yield workers
+    except BaseException:
+        for w in workers:
+            w.kill()
+        raise
+    failed = None
+    for w in workers:
+        try:
+            w.wait()
+        except ChildFailed as e:
+            failed = failed or e
+    if failed is not None:
+        raise failed

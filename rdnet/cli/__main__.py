@@ -1,5 +1,3 @@
-import sys
+from rdnet.cli import entry
 
-from rdnet.cli import main
-
-sys.exit(main())
+entry()

@@ -35,8 +35,10 @@ def run(args) -> int:
     from rdnet.calib.report import write_report
     from rdnet.cli.simulate import _section
     from rdnet.errors import FormatError
+    from rdnet.eval.report import prepare_figures
     from rdnet.events.io import load, open_events
     from rdnet.events.io._common import check_output_folder
+    from rdnet.runtime import forked_workers
 
     params = load_cli_params(args)
     sensor = _section(params, "sensor", "rdnet.sim.settings:SensorConfig")
@@ -51,22 +53,14 @@ def run(args) -> int:
         if not src.has_frames:
             raise FormatError(args.recording, "frames", "recording has no frames (calibrate simulates from them)")
     rec = load(args.recording)
-    importer = None
-    if not args.no_plots:
-        # matplotlib's import overlaps the calibration, whose threads spend their time in
-        # numba, OpenCV and numpy with the GIL released
-        import threading
-
-        from rdnet.eval.report import import_figure_modules
-        importer = threading.Thread(target=import_figure_modules, name="rdnet-import-matplotlib")
-        importer.start()
-    try:
+    # two workers, forked before the calibration starts its threads, load matplotlib at the
+    # lowest priority (on the CPU time the calibration leaves idle) and draw the figures side
+    # by side at the end (rdnet.runtime.ForkedWorker); where fork is missing, the figures
+    # are drawn here
+    with forked_workers(0 if args.no_plots else 2, prepare_figures, nice=19) as workers:
         cal = calibrate(rec, sensor, degrade, cfg, seed=args.seed, interpolate=interp, source=str(args.recording),
                         progress=args.progress)
-    finally:
-        if importer is not None:
-            importer.join()       # also when the calibration fails: no import left running at exit
-    paths = write_report(cal, args.out, plots=not args.no_plots)
+        paths = write_report(cal, args.out, plots=not args.no_plots, workers=workers)
     print(finding(cal.report))
     flagged = [e["name"] for e in cal.report["effects"] if e["missing"] and e.get("caveats")]
     if flagged:

@@ -49,6 +49,22 @@ def import_figure_modules() -> None:
     import matplotlib.figure  # noqa: F401
 
 
+def prepare_figures() -> None:
+    """:func:`import_figure_modules`, then draw a tiny figure with a log axis, a legend and a
+    colour bar into memory, so that the fonts, the mathtext parser of the log axis's labels
+    and the colour maps are loaded before the first real figure (about 0.04 s of a forked
+    worker's first figure, :class:`rdnet.runtime.ForkedWorker`)."""
+    import io
+    import_figure_modules()
+    fig, axes = _figure(1, 2, figsize=(3, 2))
+    axes[0].plot([1, 2], [1, 100], label="a")
+    axes[0].set_yscale("log")
+    axes[0].set_title("a", y=1.0)
+    axes[0].legend()
+    fig.colorbar(axes[1].imshow([[0.0, 1.0]]), ax=axes[1])
+    fig.savefig(io.BytesIO(), dpi=20, format="png")
+
+
 def _figure(nrows: int = 1, ncols: int = 1, *, figsize, squeeze: bool = True):
     """A standalone Figure on the Agg canvas (no pyplot, no global backend state)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg

@@ -180,7 +180,7 @@ def test_a_figure_for_every_effect_and_the_still_pixels_rate_in_hz(hot_cal, tmp_
     """Every effect's own statistic can be drawn (one figure per named effect), and the
     still-pixel panel shows each series' rate in events / pixel / s on its own axis: a
     ratio to the recording's rate is meaningless when its still pixels hardly fire."""
-    from rdnet.calib.report import _plot_statistic, figures
+    from rdnet.calib.report import FigureData, _plot_statistic, figures
     from rdnet.eval.report import _figure
     cal, _ = hot_cal
     every = dataclasses.replace(cal, report={**cal.report,
@@ -189,7 +189,7 @@ def test_a_figure_for_every_effect_and_the_still_pixels_rate_in_hz(hot_cal, tmp_
     assert {f"effect_{e['name']}.png" for e in cal.report["effects"]} <= set(names)
     assert all((tmp_path / n).stat().st_size > 1000 for n in names)
     fig, ax = _figure(figsize=(6, 4))
-    _plot_statistic(ax, "static_rate", cal)
+    _plot_statistic(ax, "static_rate", FigureData.of(cal))
     rate_ax = next(a for a in fig.axes if a is not ax)
     heights = [b.get_height() for b in rate_ax.patches]
     assert heights == pytest.approx([float(s["static_rate"]) for s in
@@ -199,7 +199,7 @@ def test_a_figure_for_every_effect_and_the_still_pixels_rate_in_hz(hot_cal, tmp_
                                            float(cal.real_stats["on_fraction"])])
     # latency's panel is the correlation curve of base and fitted against the recording
     fig, ax = _figure(figsize=(6, 4))
-    _plot_statistic(ax, "lag_smoothed", cal)
+    _plot_statistic(ax, "lag_smoothed", FigureData.of(cal))
     curves = [ln for ln in ax.lines if ln.get_label().startswith(("base vs real", "fitted vs real"))]
     assert len(curves) == 2
     for ln in curves:

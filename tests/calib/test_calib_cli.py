@@ -1,5 +1,7 @@
 """``rdnet calibrate``: exit codes, clear errors on bad input, output files."""
 import json
+import subprocess
+import sys
 
 import pytest
 
@@ -54,6 +56,32 @@ def test_cli_writes_report(rec, tmp_path, capsys):
     assert (out / "report.md").read_text().startswith("# Sim-to-real calibration")
     assert "hot pixels" in cap.out
     assert "caveats for" not in cap.out          # nothing flagged
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork")
+def test_cli_draws_its_figures_in_forked_workers_and_the_files_are_the_same(rec, tmp_path):
+    """``rdnet calibrate`` in its own process, as a user runs it, draws the figures in two
+    forked workers (rdnet.runtime.forked_workers); with fork switched off the same
+    calibration draws them in process, one after the other: the same files, byte for byte."""
+    path = tmp_path / "rec.h5"
+    write_recording(path, rec)
+    args = ["calibrate", str(path), "--params", str(_params(tmp_path)), "--seed", "3", "--no-progress", "--out"]
+    forked = subprocess.run([sys.executable, "-m", "rdnet.cli", "-v", *args, str(tmp_path / "forked")],
+                            capture_output=True, text=True, timeout=300)
+    assert forked.returncode == 0, forked.stderr
+    assert "figures drawn by 2 forked workers" in forked.stderr
+    here = ("import sys, rdnet.runtime as r\nr.can_fork = lambda: False\nfrom rdnet.cli import main\n"
+            "sys.exit(main(sys.argv[1:]))")
+    serial = subprocess.run([sys.executable, "-c", here, "-v", *args, str(tmp_path / "here")],
+                            capture_output=True, text=True, timeout=300)
+    assert serial.returncode == 0, serial.stderr
+    assert "forked workers" not in serial.stderr
+    pngs = sorted(p.name for p in (tmp_path / "forked").glob("*.png"))
+    assert pngs == sorted(p.name for p in (tmp_path / "here").glob("*.png"))
+    assert {"mismatch_maps.png", "statistics.png", "effect_hot_pixels.png"} <= set(pngs)
+    for name in pngs:
+        assert (tmp_path / "forked" / name).read_bytes() == (tmp_path / "here" / name).read_bytes(), name
+    assert not list(tmp_path.glob(".forked.*"))          # no staging folder left behind
 
 
 def test_cli_points_to_the_caveats(rec, tmp_path, capsys, monkeypatch):
