@@ -70,6 +70,32 @@ def can_fork() -> bool:
     return sys.platform.startswith("linux") and hasattr(os, "fork") and threading.active_count() == 1
 
 
+def _run_niced(fn: Callable[[], object], nice: int) -> None:
+    """``fn()`` in a thread of niceness ``nice`` (Linux keeps a nice value per thread), so
+    that only this preparation yields the CPU: the job that follows runs in the calling
+    thread at its own priority, also on a machine that other work keeps busy (a process
+    cannot lower its niceness again)."""
+    if not nice:
+        fn()
+        return
+    import threading
+    failed: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            with contextlib.suppress(OSError):
+                os.setpriority(os.PRIO_PROCESS, 0, min(19, os.getpriority(os.PRIO_PROCESS, 0) + nice))
+            fn()
+        except BaseException as e:             # raised again in the calling thread
+            failed.append(e)
+
+    th = threading.Thread(target=run, name="rdnet-prepare")
+    th.start()
+    th.join()
+    if failed:
+        raise failed[0]
+
+
 class ForkedWorker:
     """A child process forked now that runs ``prepare()`` at once, then waits for one job,
     ``fn(*args)``, sent by :meth:`submit` (pickled through a pipe), and exits.
@@ -78,9 +104,10 @@ class ForkedWorker:
     matplotlib: forked before a long computation, the child imports what it needs on the
     core the computation leaves idle, where an import thread would take the GIL from the
     computation's own Python code (measured on ``rdnet calibrate``: as slow as importing
-    afterwards); several children then draw side by side. ``nice``: the child's niceness
-    increment (``os.nice``; 19 = it runs only on CPU time nobody else wants, as a worker that
-    prepares while its parent computes should). The child is a copy of this
+    afterwards); several children then draw side by side. ``nice``: the niceness increment
+    of ``prepare`` (19: it runs only on CPU time nobody else wants, as a preparation beside
+    the parent's computation should); it runs in a thread of its own, so the job, on the
+    critical path, runs at the parent's priority. The child is a copy of this
     process at the fork, so fork before other threads start (nothing of numba's or
     OpenCV's pools is usable there). It ignores Ctrl-C (the parent kills it, see
     :func:`forked_workers`) and leaves by ``os._exit``, running no atexit handler and
@@ -113,11 +140,8 @@ class ForkedWorker:
         try:
             signal.signal(signal.SIGINT, signal.SIG_IGN)
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
-            if nice:
-                with contextlib.suppress(OSError):
-                    os.nice(nice)
             if prepare is not None:
-                prepare()
+                _run_niced(prepare, nice)
             with os.fdopen(r, "rb") as f:
                 data = f.read()                  # until the parent closes its end
             if data:                             # nothing sent: the parent did not need us

@@ -93,6 +93,13 @@ elif case == "raises":
             raise KeyError("the caller fails")
     except KeyError:
         print(f"killed after {time.perf_counter() - t:.1f} s")
+elif case == "nice":
+    def prio(name):
+        (out / name).write_text(str(os.getpriority(os.PRIO_PROCESS, 0)))
+    base = os.getpriority(os.PRIO_PROCESS, 0)
+    with forked_workers(1, lambda: prio("prepare.txt"), nice=19) as ws:
+        ws[0].submit(prio, "job.txt")
+    print(base)
 elif case == "threads":
     ev = threading.Event()
     th = threading.Thread(target=ev.wait)
@@ -144,6 +151,17 @@ def test_an_error_in_the_caller_kills_the_workers(tmp_path):
     assert r.returncode == 0, r.stderr
     assert float(r.stdout.split()[2]) < 10                       # not the job's 30 s
     assert not (tmp_path / "late.txt").exists()
+
+
+@linux
+def test_only_the_preparation_runs_niced(tmp_path):
+    """The preparation yields the CPU (nice 19, capped); the job, on the caller's critical
+    path, runs at the caller's own priority (Linux keeps a nice value per thread)."""
+    r = _forks(tmp_path, "nice")
+    assert r.returncode == 0, r.stderr
+    base = int(r.stdout.split()[-1])
+    assert int((tmp_path / "prepare.txt").read_text()) == min(19, base + 19)
+    assert int((tmp_path / "job.txt").read_text()) == base
 
 
 @linux
