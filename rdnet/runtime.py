@@ -202,13 +202,13 @@ class ForkedWorker:
 
 
 @contextlib.contextmanager
-def forked_workers(n: int, prepare: Callable[[], object] | None = None, *, nice: int = 0,
-                   fork: bool = True) -> Iterator[list[ForkedWorker]]:
-    """``n`` :class:`ForkedWorker` (none where :func:`can_fork` is false, or with
-    ``fork=False``: the caller then does the work itself). Leaving the block waits for every
+def forked_workers(n: int, prepare: Callable[[], object] | None = None, *,
+                   nice: int = 0) -> Iterator[list[ForkedWorker]]:
+    """``n`` :class:`ForkedWorker` (none where :func:`can_fork` is false: the caller then
+    does the work itself). Leaving the block waits for every
     worker (:class:`ChildFailed` after all are reaped if one failed); leaving it by an
     exception kills them first, so no file is written after the caller's clean-up."""
-    workers = [ForkedWorker(prepare, nice=nice) for _ in range(n)] if fork and n > 0 and can_fork() else []
+    workers = [ForkedWorker(prepare, nice=nice) for _ in range(n)] if n > 0 and can_fork() else []
     try:
         yield workers
     except BaseException:

@@ -42,20 +42,12 @@ def _save_figure(fig, path: str | Path) -> Path:
     return path
 
 
-def import_figure_modules() -> None:
-    """Import what :func:`_figure` needs (about 0.2 s), e.g. in a thread while other work
-    runs: the import is then done when the first figure is drawn."""
-    import matplotlib.backends.backend_agg  # noqa: F401
-    import matplotlib.figure  # noqa: F401
-
-
 def prepare_figures() -> None:
-    """:func:`import_figure_modules`, then draw a tiny figure with a log axis, a legend and a
-    colour bar into memory, so that the fonts, the mathtext parser of the log axis's labels
-    and the colour maps are loaded before the first real figure (about 0.04 s of a forked
-    worker's first figure, :class:`rdnet.runtime.ForkedWorker`)."""
+    """Import what :func:`_figure` needs (about 0.2 s) and draw a tiny figure with a log
+    axis, a legend and a colour bar into memory, so that the fonts, the mathtext parser of
+    the log axis's labels and the colour maps are loaded before the first real figure
+    (about 0.04 s of a forked worker's first figure, :class:`rdnet.runtime.ForkedWorker`)."""
     import io
-    import_figure_modules()
     fig, axes = _figure(1, 2, figsize=(3, 2))
     axes[0].plot([1, 2], [1, 100], label="a")
     axes[0].set_yscale("log")
