@@ -340,11 +340,16 @@ def write_report(cal: Calibration, out_dir: str | Path, *, plots: bool = True,
                  workers: "list[ForkedWorker] | None" = None) -> list[Path]:
     """Write report.json, report.md and the figures into ``out_dir`` (created). With
     ``workers`` (:func:`rdnet.runtime.forked_workers`, forked before the calibration with
-    :func:`rdnet.eval.report.import_figure_modules` as their preparation, as ``rdnet
-    calibrate`` does), they draw the figures, the statistics figure in the first and the
-    others in the second, while this process writes the text; the files are the same."""
+    :func:`rdnet.eval.report.prepare_figures` as their preparation, as ``rdnet calibrate``
+    does), they draw the figures, the statistics figure in the first and the others in the
+    second, while this process writes the text; the files are the same. A worker that
+    fails (its traceback goes to stderr) has its figures drawn here instead, so a figure
+    never costs the calibration's report."""
+    from rdnet.runtime import ChildFailed
+
     out = Path(out_dir)
     workers = list(workers or [])[:2] if plots else []
+    shares: list[list[str]] = []               # the figures each worker draws
     with atomic_directory(out) as stage:      # all files or none (other files of out are kept)
         try:
             if not plots:
@@ -360,8 +365,12 @@ def write_report(cal: Calibration, out_dir: str | Path, *, plots: bool = True,
                 figs = figures(cal, stage)
             write_json(stage / "report.json", cal.report)
             (stage / "report.md").write_text(markdown(cal, figs))
-            for w in workers:
-                w.wait()
+            for w, share in zip(workers, shares):
+                try:
+                    w.wait()
+                except ChildFailed as e:
+                    log.warning("%s; drawing %s here", e, ", ".join(share))
+                    draw_figures(data, stage, share)
         except BaseException:
             for w in workers:                 # nothing written into the stage after it is gone
                 w.kill()

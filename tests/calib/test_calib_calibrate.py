@@ -53,6 +53,33 @@ def test_hot_pixels_named_with_parameters(hot_cal):
     assert "hot pixels" in finding(cal.report)
 
 
+def test_a_failed_figure_worker_has_its_figures_drawn_here(hot_cal, tmp_path, caplog):
+    """A figure worker that fails (rdnet.runtime.ChildFailed on wait) costs neither the
+    report nor a figure: its share is drawn in process, the same bytes as a report drawn
+    without workers, and a warning names the figures."""
+    from rdnet.runtime import ChildFailed
+
+    class Failing:                      # a ForkedWorker whose child died
+        def submit(self, fn, *args):
+            self.share = args[2]
+
+        def wait(self):
+            raise ChildFailed("a forked worker failed (exit status 1)")
+
+        def kill(self):
+            pass
+
+    cal, _ = hot_cal
+    here = write_report(cal, tmp_path / "here")
+    with caplog.at_level("WARNING", logger="rdnet.calib.report"):
+        failed = write_report(cal, tmp_path / "failed", workers=[Failing(), Failing()])
+    assert [p.name for p in failed] == [p.name for p in here]
+    for a, b in zip(here, failed):
+        if a.suffix == ".png":
+            assert a.read_bytes() == b.read_bytes(), a.name
+    assert "drawing statistics.png here" in caplog.text and "drawing mismatch_maps.png" in caplog.text
+
+
 def test_report_schema_and_files(hot_cal, tmp_path):
     cal, _ = hot_cal
     paths = write_report(cal, tmp_path / "out")
