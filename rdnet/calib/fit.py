@@ -27,11 +27,12 @@ Steps:
    Effects whose best screen point lowers the fit discrepancy by at least ``screen_gain``
    of the fit discrepancy after the basic refit are *plausible*; an effect with ``fit_own``
    also when it lowers the score its search runs on (the fit discrepancy plus its own
-   statistic's fit term) by that much. Additive effects (hot
+   statistic's fit term) by that much (:func:`effects_to_fit`). Additive effects (hot
    pixels, timing) reuse the cached pixel-circuit events, so they are screened and
    fitted on the final pixel sample at the current thresholds.
 3. **Fit** (plausible effects: at most ``max_fitted`` of those that act in the pixel
-   circuit, every additive one): golden section between the neighbours of the best
+   circuit, those whose screen lowered the score they are searched on the most, and every
+   additive one): golden section between the neighbours of the best
    screen point (or around the guess), then the configured effects' parameters, then the
    thresholds, the effect and the configured effects refined together. An effect with
    ``fit_own`` (threshold mismatch) is searched on the fit discrepancy plus its own
@@ -992,7 +993,7 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
     rnd = 0
     while remaining and len(selected) < cfg.max_effects:
         rnd += 1
-        screened, rel, passes = {}, {}, {}
+        screened, rel, plaus = {}, {}, {}
         for eff in remaining:
             obj = level(eff)
             prev = candidates.get(eff.name)
@@ -1008,12 +1009,11 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
             rel[eff.name] = sgain / ref
             # an effect searched on its own statistic too (fit_own) is plausible when its screen
             # lowers the score it is searched on (the fit discrepancy plus that statistic's fit
-            # term), whose search would otherwise never start; the order stays the plain gain's
-            passes[eff.name] = max(rel[eff.name], _guided_gain(obj, current, eff, evs) / ref) > cfg.screen_gain
+            # term), whose search would otherwise never start (effects_to_fit)
+            plaus[eff.name] = max(rel[eff.name], _guided_gain(obj, current, eff, evs) / ref)
         order = sorted(remaining, key=lambda e: -rel[e.name])
-        # every plausible additive effect is fitted (cheap), at most max_fitted of the others
-        plausible = [e.name for e in order if passes[e.name] and level(e) is not search]
-        plausible += [e.name for e in order if passes[e.name] and level(e) is search][:cfg.max_fitted]
+        plausible = effects_to_fit({e.name: plaus[e.name] for e in order},
+                                   {e.name: level(e) is search for e in order}, cfg)
         tick(f"round {rnd} screen")
         log.info("round %d screen: %s; fitting %s", rnd,
                  ", ".join(f"{e.name} {100 * rel[e.name]:+.1f} %" for e in order), plausible or "none")
@@ -1082,6 +1082,23 @@ def calibrate_fit(search: Objective, final: Objective | None = None, fine: Objec
             "count_slope": beta, "rounds": rnd}
     return FitResult(base=base, basic=basic, final=cur_eval, basic_values=values, final_values=current,
                      selected=selected, candidates=candidates, rounds=rounds, n_sims=n, search=info)
+
+
+def effects_to_fit(gains: dict[str, float], costly: dict[str, bool], cfg) -> list[str]:
+    """Step 3's choice of the screened effects to fit: those whose screen lowered the score
+    they are searched on (``gains``: the plain fit discrepancy's relative drop, or, for an
+    effect with ``fit_own``, the larger of it and the drop of the fit discrepancy plus its
+    own statistic's term) by more than ``cfg.screen_gain``; every cheap one (additive: its
+    fit reuses the cached pixel-circuit events), and at most ``cfg.max_fitted`` of the
+    ``costly`` ones (simulated in the pixel circuit at the search level), the largest gains
+    first. The costly ones are ranked by the same score that made them plausible: ranked by
+    the plain drop, threshold mismatch (whose parameter hardly moves the discrepancy's
+    terms, ``OwnGuided``) came after every effect with a small positive drop and lost its
+    fit to them, although its own screen was by far the largest (oversample4 threshold
+    mismatch ``s2B`` of the proof: -4.8 % plain, behind ON/OFF asymmetry +3.8 % and leak
+    +2.4 %; docs/calibration.md "Which screened effects are fitted")."""
+    ranked = sorted((n for n in gains if gains[n] > cfg.screen_gain), key=lambda n: -gains[n])
+    return [n for n in ranked if not costly[n]] + [n for n in ranked if costly[n]][:cfg.max_fitted]
 
 
 def _guided_gain(obj: Objective, values: dict, effect: Effect, evs: list[Evaluation]) -> float:

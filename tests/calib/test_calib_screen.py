@@ -119,3 +119,23 @@ def test_an_effect_searched_on_its_own_statistic_is_screened_on_it_too():
     evs = [_evaluation(1.02, 0.10), _evaluation(1.05, 0.35)]
     assert _guided_gain(obj, {}, EFFECTS["threshold_mismatch"], evs) == pytest.approx(0.28)
     assert _guided_gain(obj, {}, EFFECTS["refractory_period"], evs) == -math.inf
+
+
+def test_costly_effects_are_fitted_by_the_score_that_made_them_plausible():
+    """``effects_to_fit`` (step 3): the proof's oversample4 threshold mismatch ``s2B`` screen.
+    Its plain drop is negative but its guided one (the fit discrepancy plus its own
+    statistic) the largest; ranked by the plain drop, ON/OFF asymmetry and leak took the
+    two fits. Every cheap (additive) effect is fitted; nothing at or below screen_gain is."""
+    from rdnet.calib.fit import effects_to_fit
+
+    cfg = CalibrateConfig(max_fitted=2, screen_gain=0.02)
+    gains = {"latency": 0.211, "onoff_asymmetry": 0.038, "leak_events": 0.024, "readout_saturation": 0.0,
+             "threshold_mismatch": 0.52, "hot_pixels": 0.031, "refractory_period": -0.405}
+    costly = {n: n not in ("latency", "hot_pixels") for n in gains}
+    assert effects_to_fit(gains, costly, cfg) == ["latency", "hot_pixels", "threshold_mismatch", "onoff_asymmetry"]
+    # on a level where every effect is simulated (a small scene: search = final sample)
+    everything = {n: True for n in gains}
+    assert effects_to_fit(gains, everything, cfg) == ["threshold_mismatch", "latency"]
+    assert effects_to_fit(gains, everything, CalibrateConfig(max_fitted=5, screen_gain=0.03)) == [
+        "threshold_mismatch", "latency", "onoff_asymmetry", "hot_pixels"]
+    assert effects_to_fit({"leak_events": 0.02}, {"leak_events": True}, cfg) == []   # strictly above
