@@ -19,7 +19,7 @@ report.json schema::
                   "heldout_gain", "seed_std", "fitted", "screen_gain", "statistic", "signature",
                   "look_alikes", "caveats"}],
      "discrepancy": {"metric", "fit_before", "fit_after", "heldout_before", "heldout_after", ...},
-     "basic_refit": {...}, "frame_interpolation": {...},
+     "basic_refit": {...}, "refit_caveats": [str], "frame_interpolation": {...},
      "latency_timing": {"recorded_lag_us", "recorded_ci95_us", "ideal_lag_us": {method: us},
                         "latency_range_us", "frame_interval_us", ...},
      "mismatch": {...}, "consistency": {...},

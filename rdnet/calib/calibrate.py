@@ -26,7 +26,7 @@ from tqdm.auto import tqdm
 
 from rdnet.calib.consistency import consistency, latency_scan
 from rdnet.calib.context import CalibContext, build_context, subsample_context
-from rdnet.calib.effects import EFFECTS, absent_effects, apply
+from rdnet.calib.effects import EFFECTS, THRESHOLD_SCALE, absent_effects, apply, present_effects
 from rdnet.calib.fit import (SIGNATURE_Z, Evaluation, FitResult, Objective, SimulateFn, calibrate_fit, fit_basic,
                              look_alikes, screen_gains)
 from rdnet.calib.locate import residuals, where
@@ -315,6 +315,7 @@ def _calibrate(rec: Recording, sensor: SensorConfig, degrade: DegradeConfig, cfg
             "terms_heldout_after": {k: float(v.mean()) for k, v in fit.final.held_terms.items()},
         },
         "basic_refit": {k: float(v) for k, v in fit.basic_values.items()},
+        "refit_caveats": refit_caveats(fit.final_values, degrade, fit.base.fit_count, obj.real_fit_count),
         "frame_interpolation": frame_interp,
         "latency_timing": timing,
         "mismatch": {"base": residuals(base_stats, obj.real_all, ctx),
@@ -512,6 +513,39 @@ def caveats(name: str, params: dict, degrade: DegradeConfig, interpolation: str 
     return out
 
 
+def refit_caveats(values: dict, degrade: DegradeConfig, base_count: float, real_count: float) -> list[str]:
+    """The re-fitted threshold factor and parameters of the effects the base config has
+    (``values``: the fitted config's) that ended at or beyond an end of their declared range
+    (within :data:`AT_BOUND`; the basic refit searches up to half / twice it). There the base
+    config is far from the recording, the refit stopped at a corner and not at a minimum,
+    and what is named or not named on top of it cannot be trusted. ``base_count`` /
+    ``real_count``: the simulated events of the base config and the recorded ones on the fit
+    segments, which say how far (params.yaml's study degradation on DAVIS346, session 50:
+    thresholds x6.99 and an ON/OFF ratio of 0.28, held-out discrepancy 22.4 against 8.37 from
+    the ideal sensor)."""
+    ranges = {THRESHOLD_SCALE.key: THRESHOLD_SCALE}
+    ranges.update({p.key: p for e in present_effects(degrade) for p in e.params + e.tuning})
+    out = []
+    for key, p in ranges.items():
+        if key not in values:
+            continue
+        v = float(values[key])
+        if p.lo * (1.0 + AT_BOUND) < v < p.hi * (1.0 - AT_BOUND):
+            continue
+        if v >= p.hi * (1.0 - AT_BOUND):
+            where_ = "above" if v > p.hi else "at the top of"
+        else:
+            where_ = "below" if v < p.lo else "at the bottom of"
+        out.append(f"{key} to {v:.3g} ({where_} its range [{p.lo:g}, {p.hi:g}])")
+    if not out:
+        return []
+    return [f"The re-fit moved {', '.join(out[:-1]) + ' and ' if len(out) > 1 else ''}{out[-1]}. The base config is far from this recording (at its declared values it simulates "
+            f"{base_count:.0f} events where the recording has {real_count:.0f} on the fit segments), so the refit "
+            f"stopped at a corner of its ranges, not at a minimum, and neither these values nor the effects named or "
+            f"not named on top of them can be trusted. Start from the ideal sensor (rdnet calibrate --base ideal: "
+            f"the effects the camera has beyond it) or set the base config's effects nearer the camera with --set."]
+
+
 def lag_behind_frames(events, ctx: CalibContext, sensor: SensorConfig, rng: np.random.Generator | None = None,
                       resamples: int = 0) -> dict:
     """:func:`rdnet.calib.consistency.latency_scan` of ``events`` on the context's frames
@@ -603,12 +637,14 @@ def finding(report: dict) -> str:
     missing = [e for e in report["effects"] if e["missing"]]
     d = report["discrepancy"]
     change = f"held-out discrepancy {d['heldout_before']:.3g} -> {d['heldout_after']:.3g}"
+    doubt = (" The re-fit ran to the end of a parameter's range, so this cannot be trusted: see the "
+             "report's caveats." if report.get("refit_caveats") else "")
     if not missing:
         scale = report.get("basic_refit", {}).get("threshold_scale", 1.0)
         return (f"No missing effect: after re-fitting the configured parameters (thresholds x{scale:.3g}) "
-                f"no left-out effect improves the held-out match beyond the seed spread ({change}).")
+                f"no left-out effect improves the held-out match beyond the seed spread ({change}).{doubt}")
     parts = []
     for e in missing:
         p = ", ".join(f"{k}={v:.3g}" for k, v in e["parameters"].items())
         parts.append(f"{e['name'].replace('_', ' ')} ({p}; confidence {e['confidence']:.2f})")
-    return f"The simulator is missing {' and '.join(parts)}; fitting it brings the {change}."
+    return f"The simulator is missing {' and '.join(parts)}; fitting it brings the {change}.{doubt}"

@@ -93,6 +93,16 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
 )}
 
 
+def ideal(degrade: DegradeConfig, keep: frozenset[str] | set[str] = frozenset()) -> DegradeConfig:
+    """``degrade`` with every effect of the vocabulary switched off (each key of
+    :attr:`Effect.keys` at its :data:`OFF` value) but those in ``keep``: the ideal sensor as
+    a calibration's base, which asks which effects a camera has beyond it (the
+    ``calibrate_real`` stage's ``--set`` list; ``rdnet calibrate --base ideal``). The shape and
+    tuning keys stay: they only shape an effect once it is fitted."""
+    return dataclasses.replace(degrade, **{k: OFF.get(k, 0.0) for e in EFFECTS.values() for k in e.keys
+                                           if k not in keep})
+
+
 def apply(sensor: SensorConfig, degrade: DegradeConfig, values: dict[str, float]
           ) -> tuple[SensorConfig, DegradeConfig]:
     """Configs with ``values`` applied (``threshold_scale`` multiplies both thresholds)."""

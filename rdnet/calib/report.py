@@ -87,9 +87,10 @@ def markdown(cal: Calibration, figures: list[str]) -> str:
               f"separate them: {a['separate_with']}." for e, a in alike] or [
         "Every named effect fits the held-out segments better than each other fitted candidate of "
         "its round by more than `calibrate.significance` seed spreads."]
-    warned = [(e, c) for e in r["effects"] if e["missing"] for c in e.get("caveats") or []]
+    warned = [(e["name"], c) for e in r["effects"] if e["missing"] for c in e.get("caveats") or []]
+    warned = [("basic refit", c) for c in r.get("refit_caveats") or []] + warned
     if warned:
-        lines += ["", "## Caveats", ""] + [f"- **{e['name']}**: {c}" for e, c in warned]
+        lines += ["", "## Caveats", ""] + [f"- **{name}**: {c}" for name, c in warned]
     lines += ["", "## Basic refit (configured parameters)", "",
               ", ".join(f"{k} = {v:.4g}" for k, v in r["basic_refit"].items()) or "(nothing)", ""]
     fi = r.get("frame_interpolation")

@@ -2,7 +2,7 @@
 
 Simulates events from the recording's frames (upsampled between frames) with the
 ``sensor`` and ``degrade`` parameters (plus ``--set`` overrides; what is zero there is
-what the simulator leaves out), compares them with the recorded events, re-fits the
+what the simulator leaves out; ``--base ideal``: every effect off but those set), compares them with the recorded events, re-fits the
 thresholds and the configured effects, and names the effects the config leaves out that
 the recording needs (held-out gain significant against the seed spread). Writes
 DIR/report.json, DIR/report.md and PNG figures. Settings: the ``calibrate`` section
@@ -21,6 +21,11 @@ def register(subparsers) -> None:
     p.add_argument("recording", type=Path, help="recording with frames and events (.h5 project layout, .aedat4)")
     p.add_argument("--out", type=Path, required=True, help="output folder (report.json, report.md, figures)")
     add_params_args(p)
+    p.add_argument("--base", choices=("params", "ideal"), default="params",
+                   help="the config the recording is compared with: params (default: the sensor and degrade "
+                        "sections, what is zero there is what the simulator leaves out) or ideal (every effect "
+                        "of the vocabulary off but those given with --set: which effects the camera has beyond "
+                        "an ideal sensor, as the calibrate_real stage asks)")
     p.add_argument("--seed", type=seed_arg, default=0, help="base seed of the simulations (default 0)")
     p.add_argument("--no-interpolate", action="store_true",
                    help="simulate from the frames as given (as interpolate.method=none)")
@@ -28,6 +33,17 @@ def register(subparsers) -> None:
     from rdnet.cli.info import add_progress_arg
     add_progress_arg(p)
     p.set_defaults(func=run)
+
+
+def base_degrade(degrade, base: str, sets: list[str]):
+    """The ``degrade`` config the recording is compared with: as read (``base`` 'params'), or
+    with every effect of the vocabulary off but the keys given by ``--set degrade.KEY=...``
+    (``base`` 'ideal', :func:`rdnet.calib.effects.ideal`)."""
+    if base == "params":
+        return degrade
+    from rdnet.calib.effects import ideal
+    given = {s.split("=", 1)[0].strip().removeprefix("degrade.") for s in sets if s.strip().startswith("degrade.")}
+    return ideal(degrade, keep=given)
 
 
 def run(args) -> int:
@@ -45,6 +61,7 @@ def run(args) -> int:
     degrade = _section(params, "degrade", "rdnet.sim.settings:DegradeConfig")
     cfg = _section(params, "calibrate", "rdnet.calib.settings:CalibrateConfig")
     interp = _section(params, "interpolate", "rdnet.sim.interpolate:InterpolateConfig")
+    degrade = base_degrade(degrade, args.base, args.sets)
     if args.no_interpolate:
         import dataclasses
         interp = dataclasses.replace(interp, method="none")
@@ -62,7 +79,8 @@ def run(args) -> int:
                         progress=args.progress)
         paths = write_report(cal, args.out, plots=not args.no_plots, workers=workers)
     print(finding(cal.report))
-    flagged = [e["name"] for e in cal.report["effects"] if e["missing"] and e.get("caveats")]
+    flagged = (["the basic refit"] if cal.report.get("refit_caveats") else []) + [
+        e["name"] for e in cal.report["effects"] if e["missing"] and e.get("caveats")]
     if flagged:
         print(f"caveats for {', '.join(flagged)}: see the section 'Caveats' of {args.out / 'report.md'}")
     print(f"wrote {', '.join(str(p) for p in paths[:2])} and {len(paths) - 2} figures "

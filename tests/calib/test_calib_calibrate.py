@@ -405,3 +405,28 @@ def test_caveat_when_a_parameter_stops_at_the_end_of_its_range():
                    "flow", fitted=False) == []
     (text,) = caveats("bandwidth", {"cutoff_hz": 1.0, "cutoff_floor": 0.078}, DegradeConfig(cutoff_floor=0.078), "flow")
     assert "at the bottom of its search range [1, 3000]" in text
+
+
+def test_refit_caveat_when_the_refit_leaves_the_ranges():
+    """A basic refit that moved the threshold factor or a configured effect's parameter to or
+    past an end of its declared range (params.yaml's study degradation on DAVIS346: thresholds
+    x6.99, ON/OFF ratio 0.28) is flagged once, with the event counts; values inside the ranges,
+    and effects the base config does not have, are not."""
+    from rdnet.calib.calibrate import refit_caveats
+    base = DegradeConfig(onoff_ratio=1.3, shot_noise_hz=5.0)
+    (text,) = refit_caveats({"threshold_scale": 6.99, "onoff_ratio": 0.2785, "shot_noise_hz": 0.7}, base,
+                            150021.0, 9696.0)
+    assert text.startswith("The re-fit moved threshold_scale to 6.99 (above its range [0.4, 2.5]) and onoff_ratio "
+                           "to 0.279 (below its range [0.4, 2.5]).")
+    assert "it simulates 150021 events where the recording has 9696" in text and "--base ideal" in text
+    (text,) = refit_caveats({"threshold_scale": 2.49, "shot_noise_hz": 30.0}, base, 1.0, 1.0)
+    assert "threshold_scale to 2.49 (at the top of its range" in text and "shot_noise_hz to 30 (at the top" in text
+    assert refit_caveats({"threshold_scale": 2.3, "onoff_ratio": 0.41, "shot_noise_hz": 0.7}, base, 1.0, 1.0) == []
+    # latency is not in the base config: its value is an effect's fit (caveats()), not a refit
+    assert refit_caveats({"latency_us": 50000.0}, base, 1.0, 1.0) == []
+
+
+def test_the_report_has_no_refit_caveat_when_the_refit_stays_inside(hot_cal):
+    cal, _ = hot_cal
+    assert cal.report["refit_caveats"] == []
+    assert "cannot be trusted" not in finding(cal.report)

@@ -155,3 +155,58 @@ def test_cli_events_only_raw_fails_before_decoding(tmp_path, capsys, monkeypatch
     assert rc == 2 and "no frames" in cap.err and "night.raw" in cap.err
     assert "Traceback" not in cap.err and len(cap.err.strip().splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_base_ideal_switches_every_effect_off_but_those_set():
+    """``--base ideal``: each key of the effect vocabulary at its off value (ON/OFF ratio 1,
+    the rest 0) unless given with --set; the shape keys stay as read."""
+    from rdnet.calib.effects import EFFECTS
+    from rdnet.cli.calibrate import base_degrade
+    from rdnet.sim.settings import DegradeConfig
+
+    d = DegradeConfig(shot_noise_hz=5.0, onoff_ratio=1.3, latency_us=100.0, cutoff_hz=300.0,
+                      hot_pixel_on_fraction=0.8, cutoff_floor=0.05)
+    assert base_degrade(d, "params", []) is d
+    ideal = base_degrade(d, "ideal", ["sensor.threshold_on=0.3"])
+    keys = {k for e in EFFECTS.values() for k in e.keys}
+    assert len(keys) == 11 and not any(e.present(ideal) for e in EFFECTS.values())
+    assert ideal.onoff_ratio == 1.0 and ideal.shot_noise_hz == 0.0 and ideal.cutoff_hz == 0.0
+    assert (ideal.hot_pixel_on_fraction, ideal.cutoff_floor) == (0.8, 0.05)      # shape and tuning kept
+    kept = base_degrade(d, "ideal", ["degrade.shot_noise_hz=5", " degrade.latency_us = 100"])
+    assert (kept.shot_noise_hz, kept.latency_us, kept.onoff_ratio) == (5.0, 100.0, 1.0)
+
+
+def test_cli_base_ideal_compares_with_the_ideal_sensor(rec, tmp_path, capsys):
+    path = tmp_path / "rec.h5"
+    write_recording(path, rec)
+    out = tmp_path / "out"
+    rc, cap = _run(capsys, path, "--out", out, "--params", _params(tmp_path), "--base", "ideal", "--no-plots")
+    assert rc == 0, cap.err
+    r = json.loads((out / "report.json").read_text())
+    assert r["base_config"]["degrade"]["shot_noise_hz"] == 0.0        # 3.0 in the params file
+    assert r["refit_caveats"] == []
+    with pytest.raises(SystemExit) as e:
+        _run(capsys, path, "--out", tmp_path / "o2", "--base", "best")
+    assert e.value.code == 2 and "invalid choice: 'best'" in capsys.readouterr().err
+
+
+def test_cli_points_to_the_refit_caveats(rec, tmp_path, capsys, monkeypatch):
+    """A re-fit that ran out of its ranges is pointed out on the console, in the finding and in
+    the report's caveats."""
+    import dataclasses
+
+    from rdnet.calib import calibrate as mod
+    real = mod.calibrate
+
+    def flagged(*a, **k):
+        cal = real(*a, **k)
+        return dataclasses.replace(cal, report={**cal.report, "refit_caveats": ["a refit note"]})
+    monkeypatch.setattr(mod, "calibrate", flagged)
+    path = tmp_path / "rec.h5"
+    write_recording(path, rec)
+    out = tmp_path / "out"
+    rc, cap = _run(capsys, path, "--out", out, "--params", _params(tmp_path), "--no-plots")
+    assert rc == 0, cap.err
+    assert "so this cannot be trusted: see the report's caveats." in cap.out
+    assert f"caveats for the basic refit: see the section 'Caveats' of {out / 'report.md'}" in cap.out
+    assert "- **basic refit**: a refit note" in (out / "report.md").read_text()
