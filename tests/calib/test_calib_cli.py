@@ -84,22 +84,31 @@ def test_cli_draws_its_figures_in_forked_workers_and_the_files_are_the_same(rec,
     assert not list(tmp_path.glob(".forked.*"))          # no staging folder left behind
 
 
-def test_cli_points_to_the_caveats(rec, tmp_path, capsys, monkeypatch):
-    """A named effect with a caveat is pointed out on the console (the report has the text)."""
+def _run_edited(rec, tmp_path, capsys, monkeypatch, edit):
+    """``rdnet calibrate`` on ``rec`` with the calibration's report passed through ``edit``
+    (report dict -> report dict) before the CLI writes and prints it. Returns (rc, captured, out)."""
     import dataclasses
 
     from rdnet.calib import calibrate as mod
     real = mod.calibrate
 
-    def flagged(*a, **k):
+    def edited(*a, **k):
         cal = real(*a, **k)
-        effects = [{**e, "caveats": ["a note"]} if e["missing"] else e for e in cal.report["effects"]]
-        return dataclasses.replace(cal, report={**cal.report, "effects": effects})
-    monkeypatch.setattr(mod, "calibrate", flagged)
+        return dataclasses.replace(cal, report=edit(cal.report))
+    monkeypatch.setattr(mod, "calibrate", edited)
     path = tmp_path / "rec.h5"
     write_recording(path, rec)
     out = tmp_path / "out"
     rc, cap = _run(capsys, path, "--out", out, "--params", _params(tmp_path), "--no-plots")
+    return rc, cap, out
+
+
+def test_cli_points_to_the_caveats(rec, tmp_path, capsys, monkeypatch):
+    """A named effect with a caveat is pointed out on the console (the report has the text)."""
+    def flag(report):
+        effects = [{**e, "caveats": ["a note"]} if e["missing"] else e for e in report["effects"]]
+        return {**report, "effects": effects}
+    rc, cap, out = _run_edited(rec, tmp_path, capsys, monkeypatch, flag)
     assert rc == 0, cap.err
     assert f"caveats for hot_pixels: see the section 'Caveats' of {out / 'report.md'}" in cap.out
     assert "- **hot_pixels**: a note" in (out / "report.md").read_text()
@@ -193,19 +202,8 @@ def test_cli_base_ideal_compares_with_the_ideal_sensor(rec, tmp_path, capsys):
 def test_cli_points_to_the_refit_caveats(rec, tmp_path, capsys, monkeypatch):
     """A re-fit that ran out of its ranges is pointed out on the console, in the finding and in
     the report's caveats."""
-    import dataclasses
-
-    from rdnet.calib import calibrate as mod
-    real = mod.calibrate
-
-    def flagged(*a, **k):
-        cal = real(*a, **k)
-        return dataclasses.replace(cal, report={**cal.report, "refit_caveats": ["a refit note"]})
-    monkeypatch.setattr(mod, "calibrate", flagged)
-    path = tmp_path / "rec.h5"
-    write_recording(path, rec)
-    out = tmp_path / "out"
-    rc, cap = _run(capsys, path, "--out", out, "--params", _params(tmp_path), "--no-plots")
+    rc, cap, out = _run_edited(rec, tmp_path, capsys, monkeypatch,
+                               lambda report: {**report, "refit_caveats": ["a refit note"]})
     assert rc == 0, cap.err
     assert "so this cannot be trusted: see the report's caveats." in cap.out
     assert f"caveats for the basic refit: see the section 'Caveats' of {out / 'report.md'}" in cap.out
