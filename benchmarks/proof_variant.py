@@ -12,6 +12,10 @@ names, the true effect's rank, the held-out discrepancy after. Writes
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/proof_variant.py --tag seeds5 --set seeds=5 \\
         --cases latency_with_jitter_s2A circuit_latency_with_jitter_s2A ...
+
+``--seed S`` runs the proof on other draws of its scenes and true events (the stage's
+``--seed``; committed: 2024): how much its counts move from draw to draw
+(``--tag draw<S>``; its per-case comparison is then with other draws of the same names).
 """
 from __future__ import annotations
 
@@ -38,7 +42,7 @@ def _blocks(metrics: dict) -> dict:
     return {k: v["cases"] for k, v in metric_blocks(metrics).items()}
 
 
-def run_variant(overrides: dict, cases: list[str] | None, workers: int) -> tuple[dict, float]:
+def run_variant(overrides: dict, cases: list[str] | None, workers: int, seed: int | None = None) -> tuple[dict, float]:
     params = yaml.safe_load((ROOT / "params.yaml").read_text())
     unknown = set(overrides) - set(params["calibrate"])
     if unknown:
@@ -51,6 +55,8 @@ def run_variant(overrides: dict, cases: list[str] | None, workers: int) -> tuple
                "--out", str(tmp / "proof"), "--metrics", str(tmp / "metrics.json"), "--workers", str(workers)]
         if cases:
             cmd += ["--cases", *cases]
+        if seed is not None:
+            cmd += ["--seed", str(seed)]
         t0 = time.perf_counter()
         subprocess.run(cmd, cwd=ROOT, check=True, stdout=subprocess.DEVNULL)
         wall = time.perf_counter() - t0
@@ -108,6 +114,9 @@ def main() -> None:
                     help="a key of params.yaml's calibrate section (repeatable)")
     ap.add_argument("--cases", nargs="+", default=None, help="case names as in the proof reports (default: all)")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=None,
+                    help="the stage's --seed (scenes and true events; default: the stage's, 2024, as committed); "
+                         "with another seed the committed cases are other draws, so compare the counts")
     ap.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results")
     args = ap.parse_args()
     overrides = {}
@@ -116,10 +125,11 @@ def main() -> None:
         if not sep:
             raise SystemExit(f"--set {item!r}: expected KEY=VALUE")
         overrides[key.strip()] = yaml.safe_load(val)
-    variant, wall = run_variant(overrides, args.cases, args.workers)
+    variant, wall = run_variant(overrides, args.cases, args.workers, args.seed)
     committed = json.loads((ROOT / "metrics" / "calibration_proof.json").read_text())
     rows = compare(variant, committed)
-    out = {"tag": args.tag, "calibrate": overrides, "cases": args.cases, "wall_s": round(wall, 1), "rows": rows,
+    out = {"tag": args.tag, "calibrate": overrides, "cases": args.cases, "seed": args.seed, "wall_s": round(wall, 1),
+           "rows": rows,
            "summary": {k: v["summary"] for k, v in metric_blocks(variant).items()}}
     write_text_atomic(args.results / f"proof_variant_{args.tag}.json", json.dumps(out, indent=1) + "\n")
     write_text_atomic(args.results / f"proof_variant_{args.tag}.md", markdown(args.tag, overrides, rows, wall) + "\n")
