@@ -89,13 +89,17 @@ def compare(variant: dict, committed: dict) -> list[dict]:
     return rows
 
 
-def markdown(tag: str, overrides: dict, rows: list[dict], wall_s: float) -> str:
+def markdown(tag: str, overrides: dict, rows: list[dict], wall_s: float, seed: int | None = None) -> str:
     changed = [r for r in rows if r["committed"] is not None and
                (r["named"] != r["committed"]["named"] or r["rank"] != r["committed"]["rank"])]
     right = sum(r["named_right"] for r in rows)
     right0 = sum(bool(r["committed"] and r["committed"]["named_right"]) for r in rows)
-    settings = ", ".join(f"{k}={v}" for k, v in overrides.items()) or "as in params.yaml (a code variant)"
-    head = (f"# Proof variant `{tag}`: calibrate {settings}\n\n"
+    settings = ", ".join(f"{k}={v}" for k, v in overrides.items()) or (
+        "as in params.yaml" + (" (a code variant)" if seed is None else ""))
+    draw = "" if seed is None else (
+        f", on the draw of scenes and true events of --seed {seed} (committed: 2024; the per-case columns compare "
+        f"different draws of the same case names)")
+    head = (f"# Proof variant `{tag}`: calibrate {settings}{draw}\n\n"
             f"{len(rows)} cases ({wall_s:.0f} s on this host); named right (or nothing in a null): {right} with the "
             f"variant, {right0} committed; {len(changed)} cases name or rank differently.\n\n")
     head_row = ["block", "case", "named", "rank", "held-out after", "committed: named", "rank", "held-out after"]
@@ -132,8 +136,8 @@ def main() -> None:
            "rows": rows,
            "summary": {k: v["summary"] for k, v in metric_blocks(variant).items()}}
     write_text_atomic(args.results / f"proof_variant_{args.tag}.json", json.dumps(out, indent=1) + "\n")
-    write_text_atomic(args.results / f"proof_variant_{args.tag}.md", markdown(args.tag, overrides, rows, wall) + "\n")
-    print(markdown(args.tag, overrides, rows, wall))
+    write_text_atomic(args.results / f"proof_variant_{args.tag}.md", markdown(args.tag, overrides, rows, wall, args.seed) + "\n")
+    print(markdown(args.tag, overrides, rows, wall, args.seed))
 
 
 if __name__ == "__main__":
