@@ -433,9 +433,9 @@ SEPARATING_MEASUREMENTS = (
      "a still scene (nothing moves) for a second or more: hot pixels keep firing at their rate, while "
      "threshold mismatch and ON/OFF asymmetry only show where the light changes"),
     ({"leak_events", "onoff_asymmetry"},
-     "the still pixels, of this recording or of a still scene held for a second or more: leak events come "
-     "with no change of light and are mostly ON, while an ON/OFF asymmetry only shows where the light "
-     "changes (compare the static pixels' ON share, in 'where' above, with the moving pixels')"),
+     "the ON share of still pixels, of a still scene held for a second or more (or of this recording's "
+     "still pixels, in 'where' above, when they hold enough events): leak events come with no change of "
+     "light and are mostly ON, while an ON/OFF asymmetry only shows where the light changes"),
     ({"leak_events", "shot_noise", "hot_pixels"},
      "a static scene recorded in the dark (lens cap) and lit: leak grows with light, shot noise is "
      "strongest in the dark, hot pixels stay a few pixels far above the rest"),

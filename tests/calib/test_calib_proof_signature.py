@@ -127,7 +127,7 @@ def test_look_alikes_are_the_candidates_the_held_out_data_do_not_separate():
     assert "flicker" in separating_measurement("threshold_mismatch", "onoff_asymmetry")   # first match
     assert "still scene" in separating_measurement("hot_pixels", "threshold_mismatch")
     # the proof's leak / ON-OFF asymmetry look-alikes: the still pixels already separate them
-    assert "static pixels' ON share" in separating_measurement("onoff_asymmetry", "leak_events")
+    assert "ON share of still pixels" in separating_measurement("onoff_asymmetry", "leak_events")
     assert separating_measurement("latency", "hot_pixels").startswith("a recording that drives one")
 
 
