@@ -521,7 +521,7 @@ def refit_caveats(values: dict, degrade: DegradeConfig, base_count: float, real_
     """The re-fitted threshold factor and parameters of the effects the base config has
     (``values``: the fitted config's) that ended at or beyond an end of their declared range
     (within :data:`AT_BOUND`; the basic refit searches up to half / twice it). There the base
-    config is far from the recording, the refit stopped at a corner and not at a minimum,
+    config is far from the recording, the re-fit stopped at a corner and not at a minimum,
     and what is named or not named on top of it cannot be trusted. ``base_count`` /
     ``real_count``: the simulated events of the base config and the recorded ones on the fit
     segments, which say how far (params.yaml's study degradation on DAVIS346, session 50:
@@ -543,11 +543,13 @@ def refit_caveats(values: dict, degrade: DegradeConfig, base_count: float, real_
         out.append(f"{key} to {v:.3g} ({where_} its range [{p.lo:g}, {p.hi:g}])")
     if not out:
         return []
-    return [f"The re-fit moved {', '.join(out[:-1]) + ' and ' if len(out) > 1 else ''}{out[-1]}. The base config is far from this recording (at its declared values it simulates "
-            f"{base_count:.0f} events where the recording has {real_count:.0f} on the fit segments), so the refit "
-            f"stopped at a corner of its ranges, not at a minimum, and neither these values nor the effects named or "
-            f"not named on top of them can be trusted. Start from the ideal sensor (rdnet calibrate --base ideal: "
-            f"the effects the camera has beyond it) or set the base config's effects nearer the camera with --set."]
+    moved = (", ".join(out[:-1]) + " and " if len(out) > 1 else "") + out[-1]
+    return [f"The re-fit moved {moved}. The base config is far from this recording (at its declared values it "
+            f"simulates {base_count:.0f} events where the recording has {real_count:.0f} on the fit segments), so "
+            f"the re-fit stopped at a corner of its ranges, not at a minimum, and neither these values nor the "
+            f"effects named or not named on top of them can be trusted. Start from the ideal sensor (rdnet "
+            f"calibrate --base ideal: the effects the camera has beyond it) or set the base config's effects "
+            f"nearer the camera with --set."]
 
 
 def lag_behind_frames(events, ctx: CalibContext, sensor: SensorConfig, rng: np.random.Generator | None = None,

@@ -2,7 +2,8 @@
 
 Simulates events from the recording's frames (upsampled between frames) with the
 ``sensor`` and ``degrade`` parameters (plus ``--set`` overrides; what is zero there is
-what the simulator leaves out; ``--base ideal``: every effect off but those set), compares them with the recorded events, re-fits the
+what the simulator leaves out; ``--base ideal``: every effect off but those set),
+compares them with the recorded events, re-fits the
 thresholds and the configured effects, and names the effects the config leaves out that
 the recording needs (held-out gain significant against the seed spread). Writes
 DIR/report.json, DIR/report.md and PNG figures. Settings: the ``calibrate`` section
