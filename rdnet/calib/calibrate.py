@@ -480,7 +480,7 @@ def caveats(name: str, params: dict, degrade: DegradeConfig, interpolation: str 
     the dark current is fitted": in the proof's block whose truths come from 4x denser frames,
     the true floor 0.078 was fitted as 0.025-0.061 while the held-out discrepancy fell).
 
-    A main parameter fitted at an end of its search range (within :data:`AT_BOUND`; only
+    A main parameter fitted at an end of its search range (:func:`range_end`; only
     when ``fitted``: a screened-out effect reports a screen grid point): the search stopped
     at the range, not at a minimum, so the value is a bound.
 
@@ -504,10 +504,9 @@ def caveats(name: str, params: dict, degrade: DegradeConfig, interpolation: str 
                    f"{t['measure']} on its own: {t['separate_with']}.")
     for p in eff.params if eff and fitted else ():
         v = float(params.get(p.key, math.nan))
-        edge = ("top" if p.hi * (1.0 - AT_BOUND) <= v <= p.hi else
-                "bottom" if p.lo <= v <= p.lo * (1.0 + AT_BOUND) else None)
+        edge = range_end(v, p, beyond=False)       # a fit stays inside its search range
         if edge:
-            out.append(f"{p.key} fitted {v:.3g}, at the {edge} of its search range [{p.lo:g}, {p.hi:g}]: the "
+            out.append(f"{p.key} fitted {v:.3g}, {edge} its search range [{p.lo:g}, {p.hi:g}]: the "
                        f"recording may ask for a value beyond it, or for something else that this effect only "
                        f"approximates; read it as a bound, not a measurement.")
     if name == "latency" and timing and "latency_us" in params:
@@ -515,6 +514,19 @@ def caveats(name: str, params: dict, degrade: DegradeConfig, interpolation: str 
         if text:
             out.append(text)
     return out
+
+
+def range_end(v: float, p, beyond: bool = True) -> str | None:
+    """Where ``v`` lies against the ends of ``p``'s range [lo, hi] (a :class:`Param`): "at the
+    top of" / "at the bottom of" within :data:`AT_BOUND` of an end, "above" / "below" beyond
+    it (None there with ``beyond=False``), None inside (and for NaN)."""
+    if v > p.hi or v < p.lo:
+        return ("above" if v > p.hi else "below") if beyond else None
+    if v >= p.hi * (1.0 - AT_BOUND):
+        return "at the top of"
+    if v <= p.lo * (1.0 + AT_BOUND):
+        return "at the bottom of"
+    return None
 
 
 def refit_caveats(values: dict, degrade: DegradeConfig, base_count: float, real_count: float) -> list[str]:
@@ -534,13 +546,9 @@ def refit_caveats(values: dict, degrade: DegradeConfig, base_count: float, real_
         if key not in values:
             continue
         v = float(values[key])
-        if p.lo * (1.0 + AT_BOUND) < v < p.hi * (1.0 - AT_BOUND):
-            continue
-        if v >= p.hi * (1.0 - AT_BOUND):
-            where_ = "above" if v > p.hi else "at the top of"
-        else:
-            where_ = "below" if v < p.lo else "at the bottom of"
-        out.append(f"{key} to {v:.3g} ({where_} its range [{p.lo:g}, {p.hi:g}])")
+        edge = range_end(v, p)
+        if edge:
+            out.append(f"{key} to {v:.3g} ({edge} its range [{p.lo:g}, {p.hi:g}])")
     if not out:
         return []
     moved = (", ".join(out[:-1]) + " and " if len(out) > 1 else "") + out[-1]
