@@ -43,7 +43,8 @@ def base_degrade(degrade, base: str, sets: list[str]):
     if base == "params":
         return degrade
     from rdnet.calib.effects import ideal
-    given = {s.split("=", 1)[0].strip().removeprefix("degrade.") for s in sets if s.strip().startswith("degrade.")}
+    from rdnet.config import parse_set
+    given = {path[1] for path, _ in map(parse_set, sets) if len(path) == 2 and path[0] == "degrade"}
     return ideal(degrade, keep=given)
 
 
