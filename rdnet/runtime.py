@@ -55,7 +55,6 @@ def keep_freed_memory() -> bool:
     return ok
 
 
-
 class ChildFailed(RuntimeError):
     """A :class:`ForkedWorker` exited with an error (its traceback went to stderr)."""
 
@@ -164,21 +163,30 @@ class ForkedWorker:
         if self._w is None:
             raise RuntimeError("this worker has its job already")
         data = pickle.dumps((fn, args), protocol=pickle.HIGHEST_PROTOCOL)
-        w, self._w = self._w, None
-        ForkedWorker._parent_ends.discard(w)
+        w = self._take_write_end()
         try:
             with os.fdopen(w, "wb") as f:
                 f.write(data)
         except BrokenPipeError:                  # the child died first: wait() says how
             pass
 
+    def _take_write_end(self) -> int | None:
+        """This worker's end of the job pipe, no longer this object's nor a later fork's to
+        close (None when taken already)."""
+        w, self._w = self._w, None
+        ForkedWorker._parent_ends.discard(w)
+        return w
+
+    def _close_write_end(self) -> None:
+        w = self._take_write_end()
+        if w is not None:
+            with contextlib.suppress(OSError):
+                os.close(w)
+
     def wait(self) -> None:
         """Wait for the child (without a job it exits at once); :class:`ChildFailed` if it
         failed."""
-        if self._w is not None:
-            ForkedWorker._parent_ends.discard(self._w)
-            os.close(self._w)
-            self._w = None
+        self._close_write_end()
         if self.pid is None:
             return
         _, status = os.waitpid(self.pid, 0)
@@ -189,11 +197,7 @@ class ForkedWorker:
 
     def kill(self) -> None:
         """Stop the child now and reap it (on the way out of an error)."""
-        if self._w is not None:
-            ForkedWorker._parent_ends.discard(self._w)
-            with contextlib.suppress(OSError):
-                os.close(self._w)
-            self._w = None
+        self._close_write_end()
         if self.pid is not None:
             with contextlib.suppress(OSError):
                 os.kill(self.pid, signal.SIGKILL)
