@@ -315,3 +315,15 @@ def test_trained_checkpoint_records_its_voxels(tmp_path, rng):
     with pytest.raises(FormatError, match="extra.voxel.normalize"):
         deblur_recording(tmp_path / "rec.h5", tmp_path / "out2", load_params(_params(tmp_path), ["voxel.normalize=maxabs"]),
                          checkpoint=ck)
+
+
+def test_without_the_study_trained_the_default_checkpoint_says_how_to_get_one(capsys, tmp_path, rng, monkeypatch):
+    """A fresh install (no `dvc repro` yet) has no models/rdnet: one line that says how to
+    train it or to pass --checkpoint, exit 2, no output (this once said only 'checkpoint not
+    found')."""
+    save(tmp_path / "rec.h5", _recording(rng))
+    monkeypatch.chdir(tmp_path)
+    rc, _, err = _run(capsys, ["deblur", "rec.h5", "out", "--params", str(_params(tmp_path)), "--no-progress"])
+    assert rc == 2
+    assert "models/rdnet" in err and "dvc repro train_deblur" in err and "--checkpoint" in err
+    assert not (tmp_path / "out").exists()
