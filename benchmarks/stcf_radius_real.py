@@ -1,0 +1,118 @@
+"""STCF's operating curves on the real recordings at radii 1-3 (issue 11: DVXplorer background
+kept <= 15 % with the person >= 75 %, better than BAF).
+
+``restore_real`` and ``benchmarks/restore_operating_curves.py`` score STCF
+(:func:`rdnet.baselines.stcf.stcf_mask`: keep an event when at least k of its neighbours within
+``radius`` fired within ``tau_us`` before it) at the study's radius 1 only. This script sweeps
+radius 1-3, tau 10 / 30 / 60 ms and every k, after the hot-pixel pass (the ``restore``
+section's settings, as ``rdnet restore`` applies it before every method), and scores each point
+as ``restore_real`` does: the share of the raw events kept inside the activity mask and outside
+it (:func:`rdnet.eval.noref.activity_mask`), and on recordings with frames the event-frame
+consistency R^2 (the ``sensor`` thresholds and ``log_eps`` of params.yaml). Recordings: those of
+``data/real`` and ``../shared/real`` that rdnet reads (``stages/real_recordings.yaml`` for their
+facts).
+
+The settings were not chosen on any recording: the grid is the whole sweep, and the Markdown
+lists, per recording, the points that meet the DVXplorer goal's corner on that recording.
+
+Writes ``benchmarks/results/stcf_radius_real.{json,md}``.
+
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/stcf_radius_real.py
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RADII = (1, 2, 3)
+TAUS_US = (10_000, 30_000, 60_000)
+
+
+def main() -> None:
+    from rdnet.baselines.stcf import stcf_mask
+    from rdnet.config import load_params, section
+    from rdnet.deblur.consistency import LogFrames, compare_consistency
+    from rdnet.eval.noref import ACTIVITY_MASK, activity_mask
+    from rdnet.events.io import load
+    from rdnet.restore.hotpixels import drop_pixels, hot_pixels, pixel_counts
+    from rdnet.restore.real import read_facts, recordings
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "stcf_radius_real")
+    args = ap.parse_args()
+    params = load_params(ROOT / "params.yaml")
+    cfg, sensor = section(params, "restore"), section(params, "sensor")
+    facts = read_facts(ROOT / "stages" / "real_recordings.yaml")
+    results = {}
+    for name, path in recordings([ROOT / "data" / "real", ROOT.parent / "shared" / "real"]):
+        size = facts.sensor_size.get(name)
+        rec = load(path, sensor_size=tuple(size)) if size else load(path)
+        raw = rec.events
+        act = activity_mask(raw, **ACTIVITY_MASK)
+        counts, dur = pixel_counts([raw], raw.width, raw.height)
+        ev = drop_pixels(raw, hot_pixels(counts, dur, cfg.hot_pixel_factor, cfg.hot_pixel_min_hz))
+        n_act, n_bg = int(act[raw.y, raw.x].sum()), int((~act)[raw.y, raw.x].sum())
+        inside = act[ev.y, ev.x]
+        frames = rec.frames if rec.frames is not None and len(rec.frames) else None
+        log_frames = LogFrames.of(frames, raw, sensor.log_eps) if frames is not None else None
+        raw_r2 = None
+        if log_frames is not None:
+            raw_r2 = compare_consistency(log_frames, {"raw": raw}, sensor.threshold_on,
+                                         sensor.threshold_off)["raw"]["r2_fitted"]
+        points = []
+        for r in RADII:
+            for tau in TAUS_US:
+                for k in range(1, (2 * r + 1) ** 2):
+                    keep = stcf_mask(ev, tau, k, r)
+                    p = {"radius": r, "tau_ms": tau // 1000, "k": k,
+                         "kept": float(keep.sum() / len(raw)),
+                         "activity": float(keep[inside].sum() / max(n_act, 1)),
+                         "background": float(keep[~inside].sum() / max(n_bg, 1))}
+                    if log_frames is not None:
+                        kept = ev.select(keep)
+                        p["consistency"] = float(compare_consistency(
+                            log_frames, {"kept": kept}, sensor.threshold_on, sensor.threshold_off)["kept"]["r2_fitted"])
+                    points.append(p)
+                    if p["activity"] < 0.05:
+                        break
+        results[name] = {"events": len(raw), "raw_consistency": raw_r2, "points": points}
+        print(name, len(points), "points", flush=True)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.with_suffix(".json").write_text(json.dumps(results, indent=1) + "\n")
+    args.out.with_suffix(".md").write_text(markdown(results))
+
+
+def markdown(results: dict) -> str:
+    lines = ["STCF (`rdnet.baselines.stcf`) at radius 1-3, tau 10 / 30 / 60 ms and every k, after the "
+             "hot-pixel pass, scored as `restore_real` scores (`python benchmarks/stcf_radius_real.py`). "
+             "Per recording and setting of radius and tau: the k whose point keeps the least background "
+             "while keeping at least 75 % of the activity (the DVXplorer goal's corner: background <= 15 %), "
+             "and the point at the study's k = 2.", ""]
+    for name, res in results.items():
+        raw = res["raw_consistency"]
+        lines += [f"**{name}** ({res['events']:,} events{'' if raw is None else f', raw consistency {raw:.3f}'})", "",
+                  "| radius | tau (ms) | k = 2: activity / background kept" + (" / consistency" if raw is not None else "")
+                  + " | lowest background with activity >= 75 %: k, activity / background"
+                  + (" / consistency" if raw is not None else "") + " |", "|---|---|---|---|"]
+        for r in RADII:
+            for tau in TAUS_US:
+                pts = [p for p in res["points"] if p["radius"] == r and p["tau_ms"] == tau // 1000]
+
+                def fmt(p):
+                    s = f"{100 * p['activity']:.1f} / {100 * p['background']:.1f} %"
+                    return s + (f" / {p['consistency']:.3f}" if "consistency" in p else "")
+                k2 = next((p for p in pts if p["k"] == 2), None)
+                ok = [p for p in pts if p["activity"] >= 0.75]
+                best = min(ok, key=lambda p: p["background"]) if ok else None
+                lines.append(f"| {r} | {tau // 1000} | {fmt(k2) if k2 else '-'} | "
+                             + (f"k = {best['k']}: {fmt(best)}" if best else "-") + " |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main()
