@@ -68,20 +68,20 @@ def main() -> None:
                 for k in range(1, (2 * r + 1) ** 2):
                     keep = stcf_mask(ev, tau, k, r)
                     p = {"radius": r, "tau_ms": tau // 1000, "k": k,
-                         "kept": float(keep.sum() / len(raw)),
-                         "activity": float(keep[inside].sum() / max(n_act, 1)),
-                         "background": float(keep[~inside].sum() / max(n_bg, 1))}
+                         "kept": round(float(keep.sum() / len(raw)), 5),
+                         "activity": round(float(keep[inside].sum() / max(n_act, 1)), 5),
+                         "background": round(float(keep[~inside].sum() / max(n_bg, 1)), 5)}
                     if log_frames is not None:
                         kept = ev.select(keep)
-                        p["consistency"] = float(compare_consistency(
-                            log_frames, {"kept": kept}, sensor.threshold_on, sensor.threshold_off)["kept"]["r2_fitted"])
+                        p["consistency"] = round(float(compare_consistency(
+                            log_frames, {"kept": kept}, sensor.threshold_on, sensor.threshold_off)["kept"]["r2_fitted"]), 5)
                     points.append(p)
                     if p["activity"] < 0.05:
                         break
         results[name] = {"events": len(raw), "raw_consistency": raw_r2, "points": points}
         print(name, len(points), "points", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.with_suffix(".json").write_text(json.dumps(results, indent=1) + "\n")
+    args.out.with_suffix(".json").write_text(json.dumps(results) + "\n")
     args.out.with_suffix(".md").write_text(markdown(results))
 
 
