@@ -317,13 +317,16 @@ def test_trained_checkpoint_records_its_voxels(tmp_path, rng):
                          checkpoint=ck)
 
 
-def test_without_the_study_trained_the_default_checkpoint_says_how_to_get_one(capsys, tmp_path, rng, monkeypatch):
+@pytest.mark.parametrize("given", [[], ["--checkpoint", "models/rdnet"]])
+def test_without_the_study_trained_the_default_checkpoint_says_how_to_get_one(capsys, tmp_path, rng, monkeypatch,
+                                                                             given):
     """A fresh install (no `dvc repro` yet) has no models/rdnet: one line that says how to
     train it or to pass --checkpoint, exit 2, no output (this once said only 'checkpoint not
-    found')."""
+    found'); the same when that place is given, as the deblur_real stage gives it."""
     save(tmp_path / "rec.h5", _recording(rng))
     monkeypatch.chdir(tmp_path)
-    rc, _, err = _run(capsys, ["deblur", "rec.h5", "out", "--params", str(_params(tmp_path)), "--no-progress"])
+    rc, _, err = _run(capsys, ["deblur", "rec.h5", "out", "--params", str(_params(tmp_path)), "--no-progress",
+                               *given])
     assert rc == 2
     assert "models/rdnet" in err and "dvc repro train_deblur" in err and "--checkpoint" in err
     assert not (tmp_path / "out").exists()
