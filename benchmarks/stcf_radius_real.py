@@ -6,11 +6,14 @@ kept <= 15 % with the person >= 75 %, better than BAF).
 ``radius`` fired within ``tau_us`` before it) at the study's radius 1 only. This script sweeps
 radius 1-3, tau 10 / 30 / 60 ms and every k, after the hot-pixel pass (the ``restore``
 section's settings, as ``rdnet restore`` applies it before every method), and scores each point
-as ``restore_real`` does: the share of the raw events kept inside the activity mask and outside
-it (:func:`rdnet.eval.noref.activity_mask`), and on recordings with frames the event-frame
-consistency R^2 (the ``sensor`` thresholds and ``log_eps`` of params.yaml). Recordings: those of
-``data/real`` and ``../shared/real`` that rdnet reads (``stages/real_recordings.yaml`` for their
-facts).
+with ``restore_real``'s measures: the share of the raw events kept inside the activity mask and
+outside it (:func:`rdnet.eval.noref.activity_mask`, :func:`~rdnet.eval.noref.mask_fractions`),
+and on recordings with frames the event-frame consistency R^2 (the ``sensor`` thresholds and
+``log_eps`` of params.yaml). The filter runs on the whole stream at once, not through ``rdnet
+restore``'s windows (STCF carries its timestamp map from window to window, so the two agree:
+the study's point, radius 1, 10 ms, k 2, reproduces ``restore_real``'s STCF row on the
+DVXplorer take and on DAVIS346). Recordings: those of ``data/real`` and ``../shared/real`` that
+rdnet reads (``stages/real_recordings.yaml`` for their facts).
 
 The settings were not chosen on any recording: the grid is the whole sweep, and the Markdown
 lists, per recording, the points that meet the DVXplorer goal's corner on that recording.
@@ -35,7 +38,7 @@ def main() -> None:
     from rdnet.baselines.stcf import stcf_mask
     from rdnet.config import load_params, section
     from rdnet.deblur.consistency import LogFrames, compare_consistency
-    from rdnet.eval.noref import ACTIVITY_MASK, activity_mask
+    from rdnet.eval.noref import ACTIVITY_MASK, activity_mask, mask_fractions
     from rdnet.events.io import load
     from rdnet.restore.hotpixels import drop_pixels, hot_pixels, pixel_counts
     from rdnet.restore.real import read_facts, recordings
@@ -54,8 +57,6 @@ def main() -> None:
         act = activity_mask(raw, **ACTIVITY_MASK)
         counts, dur = pixel_counts([raw], raw.width, raw.height)
         ev = drop_pixels(raw, hot_pixels(counts, dur, cfg.hot_pixel_factor, cfg.hot_pixel_min_hz))
-        n_act, n_bg = int(act[raw.y, raw.x].sum()), int((~act)[raw.y, raw.x].sum())
-        inside = act[ev.y, ev.x]
         frames = rec.frames if rec.frames is not None and len(rec.frames) else None
         log_frames = LogFrames.of(frames, raw, sensor.log_eps) if frames is not None else None
         raw_r2 = None
@@ -66,13 +67,11 @@ def main() -> None:
         for r in RADII:
             for tau in TAUS_US:
                 for k in range(1, (2 * r + 1) ** 2):
-                    keep = stcf_mask(ev, tau, k, r)
-                    p = {"radius": r, "tau_ms": tau // 1000, "k": k,
-                         "kept": round(float(keep.sum() / len(raw)), 5),
-                         "activity": round(float(keep[inside].sum() / max(n_act, 1)), 5),
-                         "background": round(float(keep[~inside].sum() / max(n_bg, 1)), 5)}
+                    kept = ev.select(stcf_mask(ev, tau, k, r))
+                    regions = mask_fractions(raw, kept, {"activity": act, "background": ~act})
+                    p = {"radius": r, "tau_ms": tau // 1000, "k": k, "kept": round(len(kept) / len(raw), 5),
+                         **{m: round(v["fraction"], 5) for m, v in regions.items()}}
                     if log_frames is not None:
-                        kept = ev.select(keep)
                         p["consistency"] = round(float(compare_consistency(
                             log_frames, {"kept": kept}, sensor.threshold_on, sensor.threshold_off)["kept"]["r2_fitted"]), 5)
                     points.append(p)
