@@ -148,7 +148,7 @@ def markdown(results: dict) -> str:
     head = "| radius | tau (ms) | alpha | " + " | ".join(names) + " |"
     lines += [head, "|---|---|---|" + "---|" * len(names)]
     raw_row = "| raw | | | " + " | ".join(
-        f"100 / 100 %" + (f" / {results[n]['raw_consistency']:.3f}" if results[n]["raw_consistency"] is not None else "")
+        "100 / 100 %" + (f" / {results[n]['raw_consistency']:.3f}" if results[n]["raw_consistency"] is not None else "")
         for n in names) + " |"
     hot_row = "| hot-pixel pass | | | " + " | ".join(
         f"{100 * results[n]['hot_pass']['activity']:.1f} / {100 * results[n]['hot_pass']['background']:.1f} %" for n in names) + " |"
