@@ -25,7 +25,8 @@ factor, so the pixel sample stays the proof's (4096 pixels). ``--frames recorded
     PYTHONPATH=$PWD .venv/bin/python benchmarks/proof_more_data.py --tag duration4 --duration-scale 4 \\
         --blocks rdnet circuit --cases ...
 
-Writes ``benchmarks/results/proof_more_data_<tag>.{json,md}`` (per case: named, rank, the true
+``--figure`` draws ``proof_more_data_duration.png`` from the duration runs' JSON files (the true
+effect's gain against the recording's length). Writes ``benchmarks/results/proof_more_data_<tag>.{json,md}`` (per case: named, rank, the true
 effect's held-out gain in seed spreads, held-out before/after and the noise floor, against the
 committed ``results/calibration/proof``; per statistic, the mean held-out distance after the fit).
 """
@@ -226,9 +227,65 @@ def markdown(tag: str, label: str, rows: list[dict], summaries: dict, old_summar
     return "\n".join(out) + "\n"
 
 
+def duration_figure(results: Path, significance: float) -> Path:
+    """``proof_more_data_duration.png`` from the committed proof and every
+    ``proof_more_data_duration<K>.json`` in ``results`` (recorded frames): per concealed case,
+    the true effect's held-out gain in seed spreads against the recording's length, named
+    (filled) or not (open), and the naming threshold."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    runs = {}
+    for f in sorted(results.glob("proof_more_data_duration*.json")):
+        d = json.loads(f.read_text())
+        if d["frames"] != "recorded":
+            continue
+        runs[d["duration_scale"]] = {(r["block"], r["case"]): r for r in d["rows"] if r["true_effect"]}
+        runs.setdefault(1, {(r["block"], r["case"]): {**r["committed"], "named": r["committed"]["named"],
+                                                      "true_effect": r["true_effect"]}
+                            for r in d["rows"] if r["true_effect"]})
+    if not runs:
+        raise SystemExit(f"--figure: no proof_more_data_duration*.json (recorded frames) in {results}")
+    scales = sorted(runs)
+    keys = sorted(set.intersection(*[set(v) for v in runs.values()]))
+    colors = {"rdnet": "tab:blue", "oversample4": "tab:orange", "circuit": "tab:green"}
+    fig, ax = plt.subplots(figsize=(7.5, 4.8))
+    rng = np.random.default_rng(0)
+    for key in keys:
+        jit = rng.uniform(-0.04, 0.04)
+        xs = [s * (1 + jit) for s in scales]
+        zs = [runs[s][key]["true_gain_z"] for s in scales]
+        ax.plot(xs, zs, "-", color=colors[key[0]], alpha=0.25, lw=0.8)
+        for x_, s in zip(xs, scales):
+            r = runs[s][key]
+            named = bool(r["named"]) and r["named"][0] == r["true_effect"]
+            ax.plot(x_, r["true_gain_z"], "o", ms=4, color=colors[key[0]], mfc=colors[key[0]] if named else "white")
+    ax.axhline(significance, color="k", ls="--", lw=1)
+    ax.annotate(f"naming by the gain needs {significance:g} (and a gain in every seed; filled below it: named by the "
+                "effect's own statistic)", (0.5, significance * 1.15), xycoords=("axes fraction", "data"), ha="center",
+                fontsize=7)
+    ax.set_xscale("log", base=2)
+    ax.set_xticks(scales, [f"{s} s" for s in scales])
+    ax.set_yscale("symlog", linthresh=1.0)
+    ax.set_xlabel("length of the proof's recording (same scene, truth and draws)")
+    ax.set_ylabel("true effect's held-out gain / seed spread")
+    for b, c in colors.items():
+        ax.plot([], [], "o", color=c, label=b)
+    ax.plot([], [], "o", color="gray", mfc="white", label="not named first")
+    ax.legend(fontsize=8, loc="lower right")
+    ax.set_title(f"Calibration proof: {len(keys)} concealed effects, 1 s committed", fontsize=10)
+    fig.tight_layout()
+    out = results / "proof_more_data_duration.png"
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--tag", required=True, help="names the results files")
+    ap.add_argument("--figure", action="store_true",
+                    help="only draw proof_more_data_duration.png from the committed duration runs' JSON and exit")
+    ap.add_argument("--tag", help="names the results files (required unless --figure)")
     ap.add_argument("--blocks", nargs="+", choices=BLOCKS, default=None,
                     help="default: oversample4 and circuit with --frames fine, else all three")
     ap.add_argument("--cases", nargs="+", default=None, help="case names (default: every case of the blocks)")
@@ -240,6 +297,12 @@ def main() -> None:
     ap.add_argument("--reports", type=Path, default=None, help="also write each case's report.json/md here")
     ap.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results")
     args = ap.parse_args()
+    if args.figure:
+        cfg = section(yaml.safe_load((ROOT / "params.yaml").read_text()), "calibrate")
+        print(duration_figure(args.results, cfg.significance))
+        return
+    if not args.tag:
+        ap.error("--tag is required (unless --figure)")
     blocks = args.blocks or (["oversample4", "circuit"] if args.frames == "fine" else list(BLOCKS))
     if args.frames == "fine" and "rdnet" in blocks:
         raise SystemExit("--frames fine: the rdnet block's truth comes from the recorded frames (use oversample4)")
