@@ -34,12 +34,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from real_filtering import real_recordings  # noqa: E402
+
 RADII = (1, 2)
 TAUS_US = (5_000, 10_000, 30_000)
 LONG_US = 1_000_000
@@ -81,41 +85,17 @@ def burst_keep(s: np.ndarray, n: np.ndarray, tau_us: int, long_us: int, alpha: f
 
 
 def main() -> None:
-    from rdnet.config import load_params, section
-    from rdnet.deblur.consistency import LogFrames, compare_consistency
-    from rdnet.eval.noref import ACTIVITY_MASK, activity_mask, mask_fractions, pixel_mask
-    from rdnet.events.io import load
-    from rdnet.restore.hotpixels import drop_pixels, hot_pixels, pixel_counts
-    from rdnet.restore.real import read_facts, recordings
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "burst_filter_real")
     args = ap.parse_args()
-    params = load_params(ROOT / "params.yaml")
-    cfg, sensor = section(params, "restore"), section(params, "sensor")
-    facts = read_facts(ROOT / "stages" / "real_recordings.yaml")
     results = {}
-    for name, path in recordings([ROOT / "data" / "real", ROOT.parent / "shared" / "real"]):
-        size = facts.sensor_size.get(name)
-        rec = load(path, sensor_size=tuple(size)) if size else load(path)
-        raw = rec.events
-        masks = {"activity": activity_mask(raw, **ACTIVITY_MASK)}
-        masks["background"] = ~masks["activity"]
-        if facts.hot_pixels.get(name):
-            masks["hot_pixels"] = pixel_mask(raw.width, raw.height, facts.hot_pixels[name])
-        counts, dur = pixel_counts([raw], raw.width, raw.height)
-        ev = drop_pixels(raw, hot_pixels(counts, dur, cfg.hot_pixel_factor, cfg.hot_pixel_min_hz))
-        frames = rec.frames if rec.frames is not None and len(rec.frames) else None
-        log_frames = LogFrames.of(frames, raw, sensor.log_eps) if frames is not None else None
+    for rec in real_recordings(hot_pixel_mask=True):
+        raw, ev = rec.raw, rec.events
 
         def r2(kept):
-            if log_frames is None:
-                return None
-            return round(float(compare_consistency(log_frames, {"k": kept}, sensor.threshold_on,
-                                                   sensor.threshold_off)["k"]["r2_fitted"]), 5)
+            return None if rec.consistency is None else round(rec.consistency(kept), 5)
         res = {"events": len(raw), "after_hot_pixel_pass": len(ev), "raw_consistency": r2(raw),
-               "hot_pass": {m: round(v["fraction"], 5) for m, v in mask_fractions(raw, ev, masks).items()},
-               "points": []}
+               "hot_pass": rec.shares(ev), "points": []}
         for r in RADII:
             t0 = time.perf_counter()
             counts_ = neighbour_counts(ev.t, ev.x, ev.y, ev.width, ev.height, r, [*TAUS_US, LONG_US // 2])
@@ -124,13 +104,13 @@ def main() -> None:
                 for alpha in ALPHAS:
                     kept = ev.select(burst_keep(s, n_long, tau, LONG_US, alpha))
                     p = {"radius": r, "tau_ms": tau // 1000, "alpha": alpha, "kept": round(len(kept) / len(raw), 5),
-                         **{m: round(v["fraction"], 5) for m, v in mask_fractions(raw, kept, masks).items()}}
+                         **rec.shares(kept)}
                     c = r2(kept)
                     if c is not None:
                         p["consistency"] = c
                     res["points"].append(p)
-            print(f"{name} radius {r}: {time.perf_counter() - t0:.1f} s", flush=True)
-        results[name] = res
+            print(f"{rec.name} radius {r}: {time.perf_counter() - t0:.1f} s", flush=True)
+        results[rec.name] = res
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.with_suffix(".json").write_text(json.dumps(results, indent=1) + "\n")
     args.out.with_suffix(".md").write_text(markdown(results))

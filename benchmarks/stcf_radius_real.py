@@ -26,59 +26,42 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from real_filtering import real_recordings  # noqa: E402
+
 RADII = (1, 2, 3)
 TAUS_US = (10_000, 30_000, 60_000)
 
 
 def main() -> None:
     from rdnet.baselines.stcf import stcf_mask
-    from rdnet.config import load_params, section
-    from rdnet.deblur.consistency import LogFrames, compare_consistency
-    from rdnet.eval.noref import ACTIVITY_MASK, activity_mask, mask_fractions
-    from rdnet.events.io import load
-    from rdnet.restore.hotpixels import drop_pixels, hot_pixels, pixel_counts
-    from rdnet.restore.real import read_facts, recordings
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "stcf_radius_real")
     args = ap.parse_args()
-    params = load_params(ROOT / "params.yaml")
-    cfg, sensor = section(params, "restore"), section(params, "sensor")
-    facts = read_facts(ROOT / "stages" / "real_recordings.yaml")
     results = {}
-    for name, path in recordings([ROOT / "data" / "real", ROOT.parent / "shared" / "real"]):
-        size = facts.sensor_size.get(name)
-        rec = load(path, sensor_size=tuple(size)) if size else load(path)
-        raw = rec.events
-        act = activity_mask(raw, **ACTIVITY_MASK)
-        counts, dur = pixel_counts([raw], raw.width, raw.height)
-        ev = drop_pixels(raw, hot_pixels(counts, dur, cfg.hot_pixel_factor, cfg.hot_pixel_min_hz))
-        frames = rec.frames if rec.frames is not None and len(rec.frames) else None
-        log_frames = LogFrames.of(frames, raw, sensor.log_eps) if frames is not None else None
-        raw_r2 = None
-        if log_frames is not None:
-            raw_r2 = compare_consistency(log_frames, {"raw": raw}, sensor.threshold_on,
-                                         sensor.threshold_off)["raw"]["r2_fitted"]
+    for rec in real_recordings():
+        raw, ev = rec.raw, rec.events
+        raw_r2 = rec.consistency(raw) if rec.consistency else None
         points = []
         for r in RADII:
             for tau in TAUS_US:
                 for k in range(1, (2 * r + 1) ** 2):
                     kept = ev.select(stcf_mask(ev, tau, k, r))
-                    regions = mask_fractions(raw, kept, {"activity": act, "background": ~act})
                     p = {"radius": r, "tau_ms": tau // 1000, "k": k, "kept": round(len(kept) / len(raw), 5),
-                         **{m: round(v["fraction"], 5) for m, v in regions.items()}}
-                    if log_frames is not None:
-                        p["consistency"] = round(float(compare_consistency(
-                            log_frames, {"kept": kept}, sensor.threshold_on, sensor.threshold_off)["kept"]["r2_fitted"]), 5)
+                         **rec.shares(kept)}
+                    if rec.consistency is not None:
+                        p["consistency"] = round(rec.consistency(kept), 5)
                     points.append(p)
                     if p["activity"] < 0.05:
                         break
-        results[name] = {"events": len(raw), "raw_consistency": raw_r2, "points": points}
-        print(name, len(points), "points", flush=True)
+        results[rec.name] = {"events": len(raw), "raw_consistency": raw_r2, "points": points}
+        print(rec.name, len(points), "points", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.with_suffix(".json").write_text(json.dumps(results) + "\n")
     args.out.with_suffix(".md").write_text(markdown(results))
