@@ -10,9 +10,9 @@ changes:
 * ``--frames fine`` (the ``oversample4`` and ``circuit`` blocks, whose truths are simulated
   from frames rendered 4x denser than the 100 fps the calibration is given): the recording
   carries those 4x-denser frames (400 fps; 240 fps for the 60 fps null). The calibration then
-  no longer has to absorb its own interpolation error, so what is left of the held-out
-  residual is, for oversample4, the level of a calibration inverting its own model (the rdnet
-  block's), and for the circuit, the model mismatch.
+  no longer has to absorb its own interpolation error: does what is left of the held-out
+  residual fall to the level of a calibration inverting its own model (the rdnet block's) for
+  oversample4, and to the model mismatch alone for the circuit?
 * ``--duration-scale K``: the scene (the same texture and motion) runs K times longer (the
   proof's 1 s -> K s), with the same six fit/held-out segments, each K times longer. Do the
   concealed effects the proof misses get named with more data, and do the nulls stay clean?
@@ -22,13 +22,16 @@ factor, so the pixel sample stays the proof's (4096 pixels). ``--frames recorded
 --duration-scale 1`` reproduces the committed reports (checked on three cases).
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/proof_more_data.py --tag fine_frames --frames fine
-    PYTHONPATH=$PWD .venv/bin/python benchmarks/proof_more_data.py --tag duration4 --duration-scale 4 \\
-        --blocks rdnet circuit --cases ...
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/proof_more_data.py --tag duration4 --duration-scale 4
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/proof_more_data.py --tag duration2 --duration-scale 2
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/proof_more_data.py --figure
 
+Writes ``benchmarks/results/proof_more_data_<tag>.{json,md}``: per case what is named, the true
+effect's rank, its held-out gain and own-statistic drop in seed spreads, and the held-out
+discrepancy before/after and the noise floor, against the committed
+``results/calibration/proof``; per statistic, the mean held-out distance after the fit.
 ``--figure`` draws ``proof_more_data_duration.png`` from the duration runs' JSON files (the true
-effect's gain against the recording's length). Writes ``benchmarks/results/proof_more_data_<tag>.{json,md}`` (per case: named, rank, the true
-effect's held-out gain in seed spreads, held-out before/after and the noise floor, against the
-committed ``results/calibration/proof``; per statistic, the mean held-out distance after the fit).
+effect's gain against the recording's length).
 """
 from __future__ import annotations
 
