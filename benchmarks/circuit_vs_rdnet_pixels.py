@@ -3,8 +3,9 @@ declared config (issue 12, item 2: the part of the proof's held-out residual tha
 model, about 0.05 of the circuit block's excess after the fit once the frames are the truth's
 own; docs/calibration.md, "The proof with the truth's own frames").
 
-It takes the proof's null case ``null_declared_right`` (1 Hz shot noise, 300 us jitter, the
-declared values right) on its scene, drawn as the ``calibration_proof`` stage draws it, run for
+It takes one of the proof's nulls (``--case``: ``null_declared_right``, 1 Hz shot noise and
+300 us jitter declared right, the default; ``null_thresholds``, thresholds 1.3x;
+``null_frame_rate_60``, 60 fps frames) on its scene, drawn as the ``calibration_proof`` stage draws it, run for
 ``--duration-scale`` x 1 s. It renders the events twice from the same 400 fps frames: with the
 circuit generator (``rdnet.circuit``, the block ``circuit``) and with rdnet's simulator (the
 block ``oversample4``), on the circuit null's texture, each with ``--seeds`` truth seeds. Per region of the scene (the
@@ -13,7 +14,7 @@ ON share, and the spread of the per-pixel counts over the region's pixels: quant
 per-pixel count, and the standard deviation of log(n + 1) against its Poisson expectation.
 rdnet against rdnet with another seed gives the seed-to-seed level.
 
-Writes ``benchmarks/results/circuit_vs_rdnet_pixels.{json,md}``.
+Writes ``benchmarks/results/circuit_vs_rdnet_pixels[_<case>].{json,md}`` (no suffix for the default).
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/circuit_vs_rdnet_pixels.py
 """
@@ -31,11 +32,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from latency_consistency_scan import md_table_lines  # noqa: E402
 
-CASE = "null_declared_right"
+NULLS = ("null_declared_right", "null_thresholds", "null_frame_rate_60")
 QUANTILES = (0.1, 0.25, 0.5, 0.75, 0.9, 0.99)
 
 
-def streams(duration_scale: int, seed: int, truth_seeds: list[int]) -> tuple[dict, object]:
+def streams(case_name: str, duration_scale: int, seed: int, truth_seeds: list[int]) -> tuple[dict, object]:
     from rdnet.calib.proof import TRUTH_PREROLL_US, TRUTH_WARMUP_US, case_draws, cases_for, make_recording
     from rdnet.calib.scene import SceneSpec
     from rdnet.sim.settings import SensorConfig
@@ -44,10 +45,11 @@ def streams(duration_scale: int, seed: int, truth_seeds: list[int]) -> tuple[dic
     spec0 = SceneSpec()
     spec = dataclasses.replace(spec0, duration_us=spec0.duration_us * duration_scale)
     rng = np.random.default_rng(seed)                  # the circuit block's draws: its null's texture, for both
-    tex = {c.name: case_draws(c, spec0, rng) for c in todo["circuit"]}["circuit_" + CASE][0]
-    for gen, block_cases, name, oversample in (("circuit", todo["circuit"], "circuit_" + CASE, 1),
-                                               ("rdnet", todo["rdnet"], CASE, 4)):
+    tex = {c.name: case_draws(c, spec0, rng) for c in todo["circuit"]}["circuit_" + case_name][0]
+    for gen, block_cases, name, oversample in (("circuit", todo["circuit"], "circuit_" + case_name, 1),
+                                               ("rdnet", todo["rdnet"], case_name, 4)):
         case = next(c for c in block_cases if c.name == name)
+        spec = dataclasses.replace(spec, **dict(case.scene))
         for ts in truth_seeds:
             rec, _ = make_recording(case, spec, SensorConfig(), None, oversample, None, 4, TRUTH_WARMUP_US,
                                     TRUTH_PREROLL_US, draws=(tex, int(ts)))
@@ -82,21 +84,23 @@ def describe(ev, mask: np.ndarray, duration_s: float) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--case", choices=NULLS, default=NULLS[0], help="the proof's null (both generators have it)")
     ap.add_argument("--duration-scale", type=int, default=4)
     ap.add_argument("--seed", type=int, default=2024, help="the stage's --seed (the scene's draws)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[10_000_001, 10_000_002], help="truth seeds")
     ap.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results")
     args = ap.parse_args()
-    evs, spec = streams(args.duration_scale, args.seed, args.seeds)
+    evs, spec = streams(args.case, args.duration_scale, args.seed, args.seeds)
     dur = spec.duration_us * 1e-6
     rows = []
     for reg, mask in regions(spec).items():
         for (gen, ts), ev in evs.items():
             rows.append({"region": reg, "generator": gen, "truth_seed": ts, **describe(ev, mask, dur)})
-    out = {"case": CASE, "duration_s": dur, "seeds": args.seeds, "rows": rows}
-    (args.results / "circuit_vs_rdnet_pixels.json").write_text(json.dumps(out, indent=1) + "\n")
+    out = {"case": args.case, "duration_s": dur, "seeds": args.seeds, "rows": rows}
+    stem = "circuit_vs_rdnet_pixels" + ("" if args.case == NULLS[0] else "_" + args.case)
+    (args.results / f"{stem}.json").write_text(json.dumps(out, indent=1) + "\n")
     md = ["# The circuit generator's pixels against rdnet's, same declared config and frames", "",
-          f"`python benchmarks/circuit_vs_rdnet_pixels.py` (case `{CASE}`, {dur:.0f} s of the proof's scene at 400 "
+          f"`python benchmarks/circuit_vs_rdnet_pixels.py --case {args.case}` (case `{args.case}`, {dur:.0f} s of the proof's scene at 400 "
           f"fps, truth seeds {', '.join(map(str, args.seeds))}). Per region: events, rate per pixel, ON share, per-pixel "
           f"count quantiles ({', '.join(f'{q:g}' for q in QUANTILES)}), std of log(n + 1) and the Fano factor of the "
           "per-pixel counts over the region's pixels.", ""]
@@ -105,7 +109,7 @@ def main() -> None:
                          [[r["region"], r["generator"], str(r["truth_seed"]), f"{r['events']:,}", f"{r['rate_hz_per_px']:.2f}",
                            f"{r['on_share']:.3f}", " / ".join(f"{q:.0f}" for q in r["quantiles"]),
                            f"{r['std_log']:.3f}", f"{r['fano']:.2f}"] for r in rows])
-    (args.results / "circuit_vs_rdnet_pixels.md").write_text("\n".join(md) + "\n")
+    (args.results / f"{stem}.md").write_text("\n".join(md) + "\n")
     print("\n".join(md))
 
 
