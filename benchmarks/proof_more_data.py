@@ -75,6 +75,14 @@ def fine_frames(case, draws, spec: SceneSpec) -> Frames:
     return Frames(rolled.images[k:], rolled.t_us[k:], rolled.exposure_us[k:])
 
 
+def true_effect_z(report: dict, effect: str | None) -> dict:
+    """The true effect's held-out gain in seed spreads and its own statistic's drop (None where
+    it was not fitted, or in a null)."""
+    e = next((e for e in report["effects"] if e["name"] == effect and e.get("fitted")), None)
+    return {"true_gain_z": None if e is None or not e["seed_std"] else e["heldout_gain"] / e["seed_std"],
+            "true_signature_z": None if e is None else (e.get("signature") or {}).get("z")}
+
+
 def run_job(job) -> dict:
     block, case, draws, cfg, interp, frames, duration_scale, reports = job
     base = SceneSpec()
@@ -101,9 +109,7 @@ def run_job(job) -> dict:
     m["terms_heldout_after"] = cal.report["discrepancy"]["terms_heldout_after"]
     m["heldout_excess_after"] = cal.report["discrepancy"]["heldout_excess_after"]
     m["search_pixels"] = cal.report["setup"]["search"]["search_pixels"]
-    true = next((e for e in cal.report["effects"] if e["name"] == case.effect and e.get("fitted")), None)
-    m["true_gain_z"] = None if true is None or not true["seed_std"] else true["heldout_gain"] / true["seed_std"]
-    m["true_signature_z"] = None if true is None else (true.get("signature") or {}).get("z")
+    m.update(true_effect_z(cal.report, case.effect))
     m["block"] = block
     log.info("%s %s: named %s (rank %s), held-out %.3f -> %.3f", block, case.name, m["named"], m["rank"],
              m["heldout_before"], m["heldout_after"])
@@ -134,11 +140,8 @@ def committed_cases(block: str) -> dict:
     for r in json.loads((folder / "proof.json").read_text())["cases"]:
         rep = json.loads((folder / r["case"] / "report.json").read_text())
         d = rep["discrepancy"]
-        true = next((e for e in rep["effects"] if e["name"] == r["true_effect"] and e.get("fitted")), None)
         out[r["case"]] = {**r, "terms_heldout_after": d["terms_heldout_after"],
-                          "heldout_excess_after": d["heldout_excess_after"],
-                          "true_gain_z": None if true is None or not true["seed_std"] else true["heldout_gain"] / true["seed_std"],
-                          "true_signature_z": None if true is None else (true.get("signature") or {}).get("z")}
+                          "heldout_excess_after": d["heldout_excess_after"], **true_effect_z(rep, r["true_effect"])}
     return out
 
 
@@ -244,8 +247,7 @@ def duration_figure(results: Path, significance: float) -> Path:
         if d["frames"] != "recorded":
             continue
         runs[d["duration_scale"]] = {(r["block"], r["case"]): r for r in d["rows"] if r["true_effect"]}
-        runs.setdefault(1, {(r["block"], r["case"]): {**r["committed"], "named": r["committed"]["named"],
-                                                      "true_effect": r["true_effect"]}
+        runs.setdefault(1, {(r["block"], r["case"]): {**r["committed"], "true_effect": r["true_effect"]}
                             for r in d["rows"] if r["true_effect"]})
     if not runs:
         raise SystemExit(f"--figure: no proof_more_data_duration*.json (recorded frames) in {results}")
