@@ -47,7 +47,7 @@ def resolve_checkpoint(path: str | Path | None) -> Path:
     ``seed<k>/model.pt`` of the lowest seed (the study trains one network per seed).
     None means :data:`DEFAULT_CHECKPOINT`."""
     p = Path(DEFAULT_CHECKPOINT if path is None else path)
-    if p == DEFAULT_CHECKPOINT and not p.exists():      # given or by default: the study's place
+    if p.resolve() == DEFAULT_CHECKPOINT.resolve() and not p.exists():   # the study's place, however spelt
         raise FormatError(p, None, "the study's RDNet is not trained here: run `dvc repro train_deblur` "
                           "(or `make repro`), or pass --checkpoint FILE")
     if not p.is_dir():

@@ -317,12 +317,15 @@ def test_trained_checkpoint_records_its_voxels(tmp_path, rng):
                          checkpoint=ck)
 
 
-@pytest.mark.parametrize("given", [[], ["--checkpoint", "models/rdnet"]])
+@pytest.mark.parametrize("given", [[], ["--checkpoint", "models/rdnet"], ["--checkpoint", "./models/../models/rdnet"],
+                                   ["--checkpoint", "ABSOLUTE"]])
 def test_without_the_study_trained_the_default_checkpoint_says_how_to_get_one(capsys, tmp_path, rng, monkeypatch,
                                                                              given):
     """A fresh install (no `dvc repro` yet) has no models/rdnet: one line that says how to
     train it or to pass --checkpoint, exit 2, no output (this once said only 'checkpoint not
-    found'); the same when that place is given, as the deblur_real stage gives it."""
+    found'); the same when that place is given, as the deblur_real stage gives it, however
+    the path is spelt."""
+    given = [str(tmp_path / "models" / "rdnet") if a == "ABSOLUTE" else a for a in given]
     save(tmp_path / "rec.h5", _recording(rng))
     monkeypatch.chdir(tmp_path)
     rc, _, err = _run(capsys, ["deblur", "rec.h5", "out", "--params", str(_params(tmp_path)), "--no-progress",
