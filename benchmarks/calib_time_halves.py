@@ -44,9 +44,8 @@ def halves(rec):
     out = []
     for lo, hi in ((0, mid + 1), (mid, len(fr))):
         f = Frames(fr.images[lo:hi], fr.t_us[lo:hi], fr.exposure_us[lo:hi])
-        t = rec.events.t
-        sel = (t >= f.t_us[0]) & (t <= f.t_us[-1])
-        out.append(Recording(rec.width, rec.height, events=rec.events.select(sel), frames=f, sensor=rec.sensor))
+        ev = rec.events.slice_time(int(f.t_us[0]), int(f.t_us[-1]) + 1)
+        out.append(Recording(rec.width, rec.height, events=ev, frames=f, sensor=rec.sensor))
     return out
 
 
