@@ -21,9 +21,10 @@ bounded memory. Per chunk:
 
 1. numpy (SIMD) computes ``log(I + eps)`` and the low-pass decay ``exp(-2 pi f(I) dt)``
    into buffers reused from chunk to chunk;
-2. one fused numba kernel, parallel over rows, advances every pixel (low-pass, leak,
-   thresholds, refractory, readout period, and shot noise, whose events reset the pixel
-   like any comparator firing) and writes its events to per-row buffers;
+2. one fused numba kernel, parallel over groups of rows (:func:`row_group`), advances
+   every pixel (low-pass, leak, thresholds, refractory, readout period, and shot noise,
+   whose events reset the pixel like any comparator firing) and writes its events to a
+   buffer per group;
 3. without hot pixels or timing effects the events are gathered with a stable sort per
    step (:func:`_gather_sorted`); otherwise the hot-pixel events of :mod:`rdnet.sim.effects`
    (one Poisson count per pixel per chunk) and the events held back from the previous
@@ -65,6 +66,9 @@ _NO_ALPHA = np.zeros((1, 1, 1), np.float32)
 PARALLEL_CHUNK = 2
 #: Work items per thread of the parallel gather of the ideal sensor's events over steps.
 GATHER_ITEMS_PER_THREAD = 4
+#: Pixels per group of rows of the pixel kernel (:func:`row_group`): about a page of a
+#: float32 frame, so each step of a group reads contiguous memory.
+GROUP_PIXELS = 1024
 #: Pixel-steps per chunk from which the numpy terms run in two threads.
 _THREADED_TERMS = 1 << 20
 _POOL: ThreadPoolExecutor | None = None
@@ -81,6 +85,22 @@ _ZERO_I = np.zeros(1, np.int64)
 _EMPTY_F = np.empty(0)
 
 
+def _contiguous(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The per-pixel maps C-contiguous (the kernel reads them through flat views)."""
+    return tuple(np.ascontiguousarray(a) for a in arrays)
+
+
+def row_group(width: int, height: int) -> int:
+    """Rows per group of :func:`_pixel_kernel`: as many as make :data:`GROUP_PIXELS`
+    pixels (at least 1, at most ``height``). The kernel advances a group step by step, so
+    a step reads the group's rows of one frame, contiguous in memory, in one loop. One row
+    per step (a 173-pixel row of the calibration's DAVIS346 pixel sample: 0.7 KB, and the
+    next step's 90 KB further) took 4.2 ns per pixel and step, groups of 1038 pixels 2.9
+    (ideal sensor, one thread; benchmarks/bench_sensor_groups.py). The events do not
+    depend on it."""
+    return max(1, min(int(height), -(-GROUP_PIXELS // max(int(width), 1))))
+
+
 @njit(cache=True, inline="always")
 def _finite(v):
     """(v as float64, 0), or (0.0, 1) when v is NaN or infinite (branch-free)."""
@@ -90,13 +110,13 @@ def _finite(v):
 
 
 @njit(cache=True, inline="always")
-def _advance(y, x, s1, s_prev, s0row, ref, thr_on, thr_off, crs):
-    """Pixel (y, x) moves to S = ``s1`` (the previous S kept in ``s0row[x]``); ``crs[x]``:
-    whether it crosses a threshold (branch-free)."""
-    s0row[x] = s_prev[y, x]
-    s_prev[y, x] = s1
-    r = ref[y, x]
-    crs[x] = (s1 - r >= thr_on[y, x] - CROSSING_TOL) | (r - s1 >= thr_off[y, x] - CROSSING_TOL)
+def _advance(j, s1, s_prev, s0row, ref, thr_on, thr_off, crs):
+    """Pixel j (of a group's flat views) moves to S = ``s1`` (the previous S kept in
+    ``s0row[j]``); ``crs[j]``: whether it crosses a threshold (branch-free)."""
+    s0row[j] = s_prev[j]
+    s_prev[j] = s1
+    r = ref[j]
+    crs[j] = (s1 - r >= thr_on[j] - CROSSING_TOL) | (r - s1 >= thr_off[j] - CROSSING_TOL)
 
 
 _U64 = np.uint64
@@ -167,29 +187,35 @@ def _wake_level(s0, s1, tp, t1, wake):
 
 
 @njit(cache=True, inline="always")
-def _lowpass(lp, decay, k, y, x, s1, lraw):
-    """One low-pass step of pixel (y, x) towards ``s1`` (step k), the input linear from the
-    previous step's ``lraw[y, x]`` to ``s1`` within the step (exact first-order response);
-    returns the new state."""
-    a = float(decay[k, y, x])
-    l0 = lraw[y, x]
-    lraw[y, x] = s1
+def _lowpass(lp, decay, j, s1, lraw):
+    """One low-pass step of pixel j (of a group's flat views; ``decay`` this step's)
+    towards ``s1``, the input linear from the previous step's ``lraw[j]`` to ``s1`` within
+    the step (exact first-order response); returns the new state."""
+    a = float(decay[j])
+    l0 = lraw[j]
+    lraw[j] = s1
     if a <= 0.0:
         g = 0.0
     elif a >= 0.9999999:
         g = -0.5 * (1.0 - a)
     else:
         g = a + (1.0 - a) / math.log(a)
-    lpv = a * lp[y, x] + (1.0 - a) * s1 + (s1 - l0) * g
-    lp[y, x] = lpv
+    lpv = a * lp[j] + (1.0 - a) * s1 + (s1 - l0) * g
+    lp[j] = lpv
     return lpv
+
+
+@njit(cache=True, inline="always")
+def _flat(a, p0, n):
+    """Pixels p0 .. p0 + n - 1 of ``a`` ((H, W) or a (H, W) frame), C-contiguous, flat: a view."""
+    return a.reshape(a.size)[p0:p0 + n]
 
 
 @njit(parallel=True, cache=True, nogil=True)
 def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, t_us, t_prev,
                   s_prev, lp, lraw, acc, ref, last_t, last_bin, hz, nctr, key,
                   thr_on, thr_off, drift, refractory, period,
-                  out_t, out_x, out_p, seg, counts, bad, cap):
+                  out_t, out_x, out_p, seg, counts, bad, cap, group):
     """Advance every pixel over the K steps of ``logf`` (K, H, W) log intensity.
 
     Per pixel and step k (dt = t_k - t_{k-1} in us):
@@ -211,97 +237,125 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
       is lost in the refractory/readout period of the last event like any other, and when
       emitted it resets the pixel (``ref = S`` at its time; then the refractory hold).
       Noise events and threshold crossings of a pixel are taken in time order.
-    Loops: rows in parallel, then steps, then pixels (a branch-free pass over the row that
-    vectorises, then the pixels that cross), so each row buffer is step-ordered and
-    pixel-ordered per step; ``seg[k, y]`` counts the events of row y in step k and ``counts[y]`` the row total
-    (events are written while the row total < cap). ``bad[y]`` flags NaN/inf input.
+    Loops: groups of ``group`` consecutive rows in parallel (group Y: rows Y * group ..,
+    the last group shorter; :func:`row_group`), then steps, then the group's pixels, flat
+    (a branch-free pass that vectorises, then the pixels that cross), so a step reads the
+    group's rows of a frame, contiguous in memory. Group Y's buffer (from
+    ``Y * cap``) is step-ordered, row-ordered per step and pixel-ordered per row;
+    ``seg[k, y]`` counts the events of row y in step k (:func:`_row_starts` locates them)
+    and ``counts[Y]`` the group's total (events are written while it is < cap). ``bad[Y]``
+    flags NaN/inf input. The events and their order do not depend on ``group``.
     """
     K, H, W = logf.shape
+    n_groups = (H + group - 1) // group
     use_period = period > 0.0
     use_reset = refractory > 0.0
-    for y in prange(H):
-        base = y * cap
+    for gy in prange(n_groups):
+        y0 = gy * group
+        gw = (min(H, y0 + group) - y0) * W     # pixels of the group: j = (y - y0) W + x
+        p0 = y0 * W
+        base = gy * cap
         n = 0
         isbad = False
         tp = t_prev
-        s0row = np.empty(W)
-        idx = np.empty(W, np.int64)
-        nw = (W + 7) // 8
+        # the group's pixels as flat views (indices from 0: no negative-index handling)
+        g_s = _flat(s_prev, p0, gw)
+        g_lp = _flat(lp, p0, gw)
+        g_lraw = _flat(lraw, p0, gw)
+        g_acc = _flat(acc, p0, gw)
+        g_ref = _flat(ref, p0, gw)
+        g_lt = _flat(last_t, p0, gw)
+        g_lb = _flat(last_bin, p0, gw)
+        g_hz = _flat(hz, p0, gw)
+        g_ctr = _flat(nctr, p0, gw)
+        g_on = _flat(thr_on, p0, gw)
+        g_off = _flat(thr_off, p0, gw)
+        g_drift = _flat(drift, p0, gw)
+        s0row = np.empty(gw)
+        idx = np.empty(gw, np.int64)
+        nw = (gw + 7) // 8
         crs8 = np.zeros(nw * 8, np.uint8)       # crossing flags, padded to whole words
-        crs = crs8[:W]
+        crs = crs8[:gw]
         words = crs8.view(np.uint64)
         for k in range(K):
             t1 = t_us[k]
             dt = float(t1 - tp)
-            n_before = n
+            for y in range(y0, y0 + gw // W):
+                seg[k, y] = 0
+            g_log = _flat(logf[k], p0, gw)
+            g_dec = _flat(decay[k], p0, gw) if use_lp else _flat(decay[0], 0, 1)
+            g_lin = _flat(lin[k], p0, gw) if use_shot else _flat(lin[0], 0, 1)
             # pass 1: new S of every pixel and whether it crosses, in a loop without
             # branches per configuration (a loop-invariant branch inside keeps it scalar)
             nbad = 0
             if use_leak:
-                for x in range(W):
-                    s1, b = _finite(logf[k, y, x])
+                for j in range(gw):
+                    s1, b = _finite(g_log[j])
                     nbad += b
                     if use_lp:
-                        s1 = _lowpass(lp, decay, k, y, x, s1, lraw)
-                    a = acc[y, x] + drift[y, x] * dt
-                    acc[y, x] = a
-                    _advance(y, x, s1 + a, s_prev, s0row, ref, thr_on, thr_off, crs)
+                        s1 = _lowpass(g_lp, g_dec, j, s1, g_lraw)
+                    a = g_acc[j] + g_drift[j] * dt
+                    g_acc[j] = a
+                    _advance(j, s1 + a, g_s, s0row, g_ref, g_on, g_off, crs)
             elif use_lp:
-                for x in range(W):
-                    s1, b = _finite(logf[k, y, x])
+                for j in range(gw):
+                    s1, b = _finite(g_log[j])
                     nbad += b
-                    _advance(y, x, _lowpass(lp, decay, k, y, x, s1, lraw), s_prev, s0row, ref, thr_on, thr_off, crs)
+                    _advance(j, _lowpass(g_lp, g_dec, j, s1, g_lraw), g_s, s0row, g_ref, g_on, g_off, crs)
             else:
-                for x in range(W):
-                    s1, b = _finite(logf[k, y, x])
+                for j in range(gw):
+                    s1, b = _finite(g_log[j])
                     nbad += b
-                    _advance(y, x, s1, s_prev, s0row, ref, thr_on, thr_off, crs)
+                    _advance(j, s1, g_s, s0row, g_ref, g_on, g_off, crs)
             isbad |= nbad > 0
             if use_reset:
                 # pixels held in reset during this step (an event less than ``refractory``
                 # ago): the reference follows S until the pixel wakes (all step: ref = S_k;
                 # waking inside the step: ref = S at the wake time, then it may cross)
-                for x in range(W):
-                    wake = last_t[y, x] + refractory
+                for j in range(gw):
+                    wake = g_lt[j] + refractory
                     if wake > tp:
-                        s1 = s_prev[y, x]
-                        r = _wake_level(s0row[x], s1, tp, t1, wake)
-                        ref[y, x] = r
+                        s1 = g_s[j]
+                        r = _wake_level(s0row[j], s1, tp, t1, wake)
+                        g_ref[j] = r
                         if wake >= t1:
-                            crs[x] = 0
+                            crs[j] = 0
                         else:
-                            crs[x] = (s1 - r >= thr_on[y, x] - CROSSING_TOL) | (r - s1 >= thr_off[y, x] - CROSSING_TOL)
+                            crs[j] = (s1 - r >= g_on[j] - CROSSING_TOL) | (r - s1 >= g_off[j] - CROSSING_TOL)
             if use_shot:
                 # the hazard left to the next noise event falls by the step's integral of
                 # the rate; the pixels it reaches (flag 2) are handled in pass 2
-                for x in range(W):
-                    h = hz[y, x] - (shot_a + shot_b * min(float(lin[k, y, x]), 1.0)) * dt
-                    hz[y, x] = h
-                    crs[x] |= np.uint8(2) * np.uint8(h <= 0.0)
+                for j in range(gw):
+                    h = g_hz[j] - (shot_a + shot_b * min(float(g_lin[j]), 1.0)) * dt
+                    g_hz[j] = h
+                    crs[j] |= np.uint8(2) * np.uint8(h <= 0.0)
             # the pixels that cross or fire a noise event (few: 8 flags are tested at once)
             m = 0
             for w8 in range(nw):
                 if words[w8] != 0:
-                    for x in range(w8 * 8, min(w8 * 8 + 8, W)):
-                        if crs[x]:
-                            idx[m] = x
+                    for j in range(w8 * 8, min(w8 * 8 + 8, gw)):
+                        if crs[j]:
+                            idx[m] = j
                             m += 1
             # pass 2: the events of those pixels, in pixel order, each pixel's in time order
             for q in range(m):
-                x = idx[q]
-                s1 = s_prev[y, x]
-                s0 = s0row[x]
-                r = ref[y, x]
-                ton = thr_on[y, x]
-                toff = thr_off[y, x]
+                j = idx[q]
+                yr = j // W
+                x = j - yr * W
+                n_pixel = n
+                s1 = g_s[j]
+                s0 = s0row[j]
+                r = g_ref[j]
+                ton = g_on[j]
+                toff = g_off[j]
                 ds = s1 - s0
-                lt = last_t[y, x]
-                lb = last_bin[y, x]
+                lt = g_lt[j]
+                lb = g_lb[j]
                 fn = 2.0                    # step fraction of the next noise event (> 1: none)
                 hdt = 0.0
-                if crs[x] & 2:
-                    hdt = (shot_a + shot_b * min(float(lin[k, y, x]), 1.0)) * dt
-                    fn = (hz[y, x] + hdt) / hdt
+                if crs[j] & 2:
+                    hdt = (shot_a + shot_b * min(float(g_lin[j]), 1.0)) * dt
+                    fn = (g_hz[j] + hdt) / hdt
                 while True:
                     # the next threshold crossing from r and its step fraction fc
                     if s1 - r >= ton - CROSSING_TOL:
@@ -324,8 +378,8 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                         # a noise event: fires unless in the refractory/readout period
                         te = np.int64(math.floor(tp + fn * dt + 0.5))
                         fire, lb = _admit(te, lt, lb, refractory, use_period, period)
-                        e, pb = _noise_draw(key, y * W + x, nctr[y, x])
-                        nctr[y, x] += 1
+                        e, pb = _noise_draw(key, p0 + j, g_ctr[j])
+                        g_ctr[j] += 1
                         if fire:
                             lt = te
                             n = _emit(out_t, out_x, out_p, base, n, cap, te, x, pb)
@@ -336,7 +390,7 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                         if e <= rest:
                             fn += e / hdt
                         else:
-                            hz[y, x] = e - rest
+                            g_hz[j] = e - rest
                             fn = 2.0
                         continue
                     if pol < 0:
@@ -350,30 +404,45 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                     n = _emit(out_t, out_x, out_p, base, n, cap, te, x, pol)
                     if use_reset:           # held in reset: ref follows S until te + refractory
                         r = _wake_level(s0, s1, tp, t1, te + refractory)
-                ref[y, x] = r
-                last_t[y, x] = lt
-                last_bin[y, x] = lb
-            seg[k, y] = n - n_before
+                g_ref[j] = r
+                g_lt[j] = lt
+                g_lb[j] = lb
+                seg[k, y0 + yr] += n - n_pixel
             tp = t1
-        counts[y] = n
-        bad[y] = isbad
+        counts[gy] = n
+        bad[gy] = isbad
+
+
+@njit(cache=True)
+def _row_starts(seg, cap, group):
+    """First buffer slot of the events of (step k, row y) as :func:`_pixel_kernel` writes
+    them: group Y (rows Y * ``group`` ..) from ``Y * cap`` on, step by step, row by row
+    within a step."""
+    K, H = seg.shape
+    start = np.empty((K, H), np.int64)
+    for gy in range((H + group - 1) // group):
+        s = gy * cap
+        for k in range(K):
+            for y in range(gy * group, min(H, (gy + 1) * group)):
+                start[k, y] = s
+                s += seg[k, y]
+    return start
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _gather_sorted(out_t, out_x, out_p, seg, cap, t_us, t_prev, out):
-    """Write the per-row, step-ordered buffers into ``out`` (EVENT_DTYPE) sorted by time.
+def _gather_sorted(out_t, out_x, out_p, seg, cap, group, t_us, t_prev, out):
+    """Write the kernel's step-ordered buffers (:func:`_row_starts`) into ``out``
+    (EVENT_DTYPE) sorted by time.
 
     Events of step k lie in [t_{k-1}, t_k]; steps are handled in parallel, each with a
     stable counting sort on its time offsets (argsort when the step is long compared
     with its event count). Ties keep (row, pixel) order."""
     K, H = seg.shape
-    rowoff = np.zeros((K, H), np.int64)
+    start = _row_starts(seg, cap, group)
     stepoff = np.zeros(K + 1, np.int64)
     for k in range(K):
         tot = 0
         for y in range(H):
-            if k > 0:
-                rowoff[k, y] = rowoff[k - 1, y] + seg[k - 1, y]
             tot += seg[k, y]
         stepoff[k + 1] = stepoff[k] + tot
     for k in prange(K):
@@ -386,13 +455,13 @@ def _gather_sorted(out_t, out_x, out_p, seg, cap, t_us, t_prev, out):
         if span <= 32 * m + 1024:      # else the histogram costs more than a merge sort
             cnt = np.zeros(span + 1, np.int64)
             for y in range(H):
-                s = y * cap + rowoff[k, y]
+                s = start[k, y]
                 for j in range(s, s + seg[k, y]):
                     cnt[out_t[j] - lo + 1] += 1
             for i in range(span):
                 cnt[i + 1] += cnt[i]
             for y in range(H):
-                s = y * cap + rowoff[k, y]
+                s = start[k, y]
                 for j in range(s, s + seg[k, y]):
                     q = o + cnt[out_t[j] - lo]
                     cnt[out_t[j] - lo] += 1
@@ -406,7 +475,7 @@ def _gather_sorted(out_t, out_x, out_p, seg, cap, t_us, t_prev, out):
             ys = np.empty(m, np.int64)
             i = 0
             for y in range(H):
-                s = y * cap + rowoff[k, y]
+                s = start[k, y]
                 for j in range(s, s + seg[k, y]):
                     tt[i] = out_t[j]
                     src[i] = j
@@ -508,13 +577,13 @@ def apply_timing(arr: np.ndarray, degrade: DegradeConfig, rng: np.random.Generat
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _assemble(out_t, out_x, out_p, seg, cap, held, noise, mode, const, lo_shift, hi_shift, prob, alias, r,
+def _assemble(out_t, out_x, out_p, seg, cap, group, held, noise, mode, const, lo_shift, hi_shift, prob, alias, r,
               sigma, latency, t_min, lo, span, counting, hist_buf, out):
     """All events of a chunk into ``out`` (EVENT_DTYPE), sorted by time when ``counting``.
 
     Sources, in this order: ``held`` (events of earlier chunks, already final in time),
-    the kernel's per-row buffers (``seg[k, y]`` events of row y in step k, consecutive
-    from ``y * cap``) and the ``noise`` events. Every kernel and noise event i (in source
+    the kernel's buffers (``seg[k, y]`` events of row y in step k, consecutive from
+    :func:`_row_starts`) and the ``noise`` events. Every kernel and noise event i (in source
     order) is shifted by :func:`shift_of` (random number ``r[i]``) and
     clipped below at ``t_min``; then a stable counting sort on ``t - lo`` (``span`` bins)
     writes ``out``. Parallel over a fixed partition of the sources (held,
@@ -528,18 +597,14 @@ def _assemble(out_t, out_x, out_p, seg, cap, held, noise, mode, const, lo_shift,
     rows = (H + nb - 1) // nb
     NB = nb + 2
     nh = held.shape[0]
-    start = np.empty((K, H), np.int64)      # first buffer slot of (step k, row y)
+    start = _row_starts(seg, cap, group)    # first buffer slot of (step k, row y)
     first = np.zeros(NB + 1, np.int64)      # first slot of each block in source order
     first[1] = nh
-    for y in range(H):
-        s = y * cap
-        for k in range(K):
-            start[k, y] = s
-            s += seg[k, y]
     for b in range(nb):
         c = 0
-        for y in range(b * rows, min(H, (b + 1) * rows)):
-            c += start[K - 1, y] + seg[K - 1, y] - y * cap
+        for k in range(K):
+            for y in range(b * rows, min(H, (b + 1) * rows)):
+                c += seg[k, y]
         first[b + 2] = first[b + 1] + c
     first[NB] = first[NB - 1] + noise.shape[0]
     hist = hist_buf[:NB * span].reshape((NB, span))
@@ -672,8 +737,10 @@ class Sensor:
         self._state = (self.s_prev, self.lp, self.lraw, self.acc, self.ref, self.last_t, self.last_bin,
                        self.shot_hazard, self._noise_ctr)
         self._backup = tuple(np.empty_like(a) for a in self._state)
-        self._counts = np.zeros(H, np.int64)
-        self._bad = np.zeros(H, np.bool_)
+        self._group = row_group(W, H)
+        n_groups = -(-H // self._group)
+        self._counts = np.zeros(n_groups, np.int64)      # events per group of rows
+        self._bad = np.zeros(n_groups, np.bool_)
         self._cap = 0
         self._bufs: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._fbufs: dict[tuple[str, np.dtype], np.ndarray] = {}
@@ -685,8 +752,9 @@ class Sensor:
 
     # --- buffers ------------------------------------------------------------------------
     def _ensure_cap(self, cap: int) -> None:
+        """Event buffers of ``cap`` events per group of rows (:func:`row_group`)."""
         if cap > self._cap:
-            n = cap * self.height
+            n = cap * self._counts.size
             self._bufs = (np.empty(n, np.int64), np.empty(n, np.uint16), np.empty(n, np.uint8))
             self._cap = cap
 
@@ -851,16 +919,16 @@ class Sensor:
         # long chunk after a short one, such as the recording after the calibration's warm-up
         # on a held frame, starts from its own guess instead of overflowing and running the
         # kernel twice); grown further on overflow
-        self._ensure_cap(max(256, self.width * t.size // 2))
+        self._ensure_cap(max(256, self.width * self._group * t.size // 2))
         seg = np.zeros((t.size, self.height), np.int64)
         while True:
             out_t, out_x, out_p = self._bufs
             _pixel_kernel(logf, decay, lin, self._lp_coef > 0, self._use_leak, self._shot_a > 0,
                           self._shot_a, self._shot_b, t, t0,
                           self.s_prev, self.lp, self.lraw, self.acc, self.ref, self.last_t, self.last_bin,
-                          self.shot_hazard, self._noise_ctr, self._noise_key, self.thr_on, self.thr_off, self.drift,
+                          self.shot_hazard, self._noise_ctr, self._noise_key, *_contiguous(self.thr_on, self.thr_off, self.drift),
                           float(self.degrade.refractory_us), float(self.degrade.sample_period_us),
-                          out_t, out_x, out_p, seg, self._counts, self._bad, self._cap)
+                          out_t, out_x, out_p, seg, self._counts, self._bad, self._cap, self._group)
             bad = self._bad.any()
             need = int(self._counts.max())
             if bad or need > self._cap:
@@ -884,7 +952,7 @@ class Sensor:
                 # than its scheduling: about GATHER_ITEMS_PER_THREAD items per thread
                 chunk = max(PARALLEL_CHUNK, -(-t.size // (GATHER_ITEMS_PER_THREAD * get_num_threads())))
                 with parallel_chunksize(chunk):
-                    _gather_sorted(out_t, out_x, out_p, seg, self._cap, t, t0, arr)
+                    _gather_sorted(out_t, out_x, out_p, seg, self._cap, self._group, t, t0, arr)
             self.n_events += arr.shape[0]
             return Events(arr, self.width, self.height, validate=False)
         arr = self._assemble(seg, noise, n_kernel, t0, t1)
@@ -920,7 +988,7 @@ class Sensor:
         need = (_SORT_BLOCKS + 2) * (span if counting else 1)
         if self._hist.size < need:
             self._hist = np.empty(need, np.int64)
-        _assemble(out_t, out_x, out_p, seg, self._cap, held, noise_arr, mode, const, lo_s, hi_s,
+        _assemble(out_t, out_x, out_p, seg, self._cap, self._group, held, noise_arr, mode, const, lo_s, hi_s,
                   prob, alias, r, sig, lat, np.int64(self.t_start), np.int64(lo), np.int64(span if counting else 1),
                   counting, self._hist, out)
         if not counting:

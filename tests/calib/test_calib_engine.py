@@ -150,24 +150,32 @@ def test_sensor_uses_the_log_frames_it_is_given(ctx):
         Sensor(ctx.width, ctx.height, SENSOR, d).step(logf, t, log=True, log_frames=logf)
 
 
+@pytest.mark.parametrize("group", [1, 2])
 @pytest.mark.parametrize("scale", [1, 5])
-def test_gather_sorts_each_step_stably(scale):
+def test_gather_sorts_each_step_stably(scale, group):
     """The ideal sensor's gather sorts each step's events by time, ties in row then buffer
     order, steps in order (an event at a step's end time precedes the next step's), whether
     the step is sorted by a histogram over its span (scale 1: 1,001 us, 4 events) or by a
-    merge sort (scale 5: the span is long for its events)."""
+    merge sort (scale 5: the span is long for its events), and whether the kernel wrote a
+    buffer per row (group 1) or one for both rows (group 2: step by step, row by row)."""
     from rdnet.events.core import EVENT_DTYPE
     from rdnet.sim.sensor import _gather_sorted
 
-    cap = 4
-    # row buffers (t, x): row 0 = step 0: (5, 1), (3, 2); step 1: (1000, 0), (1700, 1)
-    #                     row 1 = step 0: (3, 0), (1000, 3); step 1: (1000, 4)
-    t = np.array([5, 3, 1000, 1700, 3, 1000, 1000, 0], np.int64) * scale
-    x = np.array([1, 2, 0, 1, 0, 3, 4, 0], np.uint16)
-    p = np.array([1, 0, 1, 0, 1, 1, 0, 0], np.uint8)
+    # (t, x, p) per row and step: row 0 = step 0: (5, 1), (3, 2); step 1: (1000, 0), (1700, 1)
+    #                             row 1 = step 0: (3, 0), (1000, 3); step 1: (1000, 4)
+    ev = {(0, 0): [(5, 1, 1), (3, 2, 0)], (0, 1): [(1000, 0, 1), (1700, 1, 0)],
+          (1, 0): [(3, 0, 1), (1000, 3, 1)], (1, 1): [(1000, 4, 0)]}
+    order = ([(0, 0), (0, 1), (1, 0), (1, 1)] if group == 1 else [(0, 0), (1, 0), (0, 1), (1, 1)])  # (row, step)
+    cap = 4 if group == 1 else 8
+    buf = {0: [], 1: []}
+    for row, step in order:
+        buf[row // group] += ev[row, step]
+    rows = [buf[b] + [(0, 0, 0)] * (cap - len(buf[b])) for b in range(2 // group)]
+    t, x, p = (np.array([e[i] for r in rows for e in r], dt) for i, dt in ((0, np.int64), (1, np.uint16), (2, np.uint8)))
+    t = t * scale
     seg = np.array([[2, 2], [2, 1]], np.int64)
     out = np.empty(7, EVENT_DTYPE)
-    _gather_sorted(t, x, p, seg, cap, np.array([1000, 2000], np.int64) * scale, 0, out)
+    _gather_sorted(t, x, p, seg, cap, group, np.array([1000, 2000], np.int64) * scale, 0, out)
     want = [(3, 2, 0), (3, 0, 1), (5, 1, 0), (1000, 3, 1), (1000, 0, 0), (1000, 4, 1), (1700, 1, 0)]
     assert [(int(e["t"]), int(e["x"]), int(e["y"])) for e in out] == [(a * scale, b, c) for a, b, c in want]
 

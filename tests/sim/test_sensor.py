@@ -71,6 +71,33 @@ def test_streaming_in_chunks_matches_one_call():
     assert np.array_equal(whole.array, chunked.array)
 
 
+@pytest.mark.parametrize("effects", [
+    {}, {"shot_noise_hz": 3.0, "refractory_us": 400.0}, {"cutoff_hz": 150.0, "leak_hz": 0.5},
+    {"sample_period_us": 300.0, "threshold_sigma": 0.05},
+    {"hot_pixel_fraction": 0.05, "hot_pixel_hz": 40.0, "jitter_us": 200.0, "latency_us": 700.0}])
+def test_events_do_not_depend_on_the_row_grouping(monkeypatch, effects):
+    """The kernel advances groups of rows (rdnet.sim.sensor.row_group): one row per group,
+    three (the last group shorter) or all 13 give the same events in the same order."""
+    import rdnet.sim.sensor as sensor_mod
+    from rdnet.sim.settings import DegradeConfig
+    rng = np.random.default_rng(11)
+    frames = np.clip(rng.uniform(0.05, 1, (1, 13, 37)) * (1 + 0.6 * np.sin(
+        np.arange(80)[:, None, None] * 0.3 + rng.uniform(0, 6, (1, 13, 37)))), 0, 1).astype(np.float32)
+    t = np.cumsum(rng.integers(200, 900, size=80)).astype(np.int64)
+    degrade = DegradeConfig(**{**{k: 0.0 for k in ("threshold_sigma", "cutoff_hz", "refractory_us", "shot_noise_hz",
+                                                   "leak_hz", "hot_pixel_fraction", "hot_pixel_hz", "jitter_us",
+                                                   "latency_us", "sample_period_us")}, **effects})
+    runs = {}
+    for pixels in (1, 3 * 37, 10_000):
+        monkeypatch.setattr(sensor_mod, "GROUP_PIXELS", pixels)
+        s = Sensor(37, 13, SensorConfig(), degrade, np.random.default_rng(5))
+        runs[s._group] = concatenate([s.step(frames[:30], t[:30]), s.step(frames[30:], t[30:]), s.flush()])
+    assert sorted(runs) == [1, 3, 13]
+    assert len(runs[1]) > 500
+    for g in (3, 13):
+        assert np.array_equal(runs[g].array, runs[1].array), g
+
+
 def test_bad_input_raises_and_keeps_state():
     s = Sensor(4, 3)
     good = np.full((2, 3, 4), 0.5, np.float32)
