@@ -123,8 +123,9 @@ def main() -> None:
                      "meets_goal": run["wall_s"] / n * 1e6 <= 60.0,
                      "named": run["named"], "heldout_before_after": [run["heldout_before"], run["heldout_after"]]})
         log.info("%s", rows[-1])
-    out = {"benchmark": "calibrate", "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                                                  "platform": platform.platform()},
+    from bench_sensor_groups import cpu_model
+    out = {"benchmark": "calibrate", "machine": {"cpu": cpu_model(), "cpus": os.cpu_count(),
+                                                  "python": platform.python_version(), "platform": platform.platform()},
            "calibrate_config": to_dict(cfg), "results": rows}
     args.results.parent.mkdir(parents=True, exist_ok=True)
     if args.results.exists():       # keep the hand-recorded history (before_redesign, ...)
