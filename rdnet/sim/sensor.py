@@ -288,12 +288,18 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
             # pass 1: new S of every pixel and whether it crosses, in a loop without
             # branches per configuration (a loop-invariant branch inside keeps it scalar)
             nbad = 0
-            if use_leak:
+            if use_leak and use_lp:
                 for j in range(gw):
                     s1, b = _finite(g_log[j])
                     nbad += b
-                    if use_lp:
-                        s1 = _lowpass(g_lp, g_dec, j, s1, g_lraw)
+                    s1 = _lowpass(g_lp, g_dec, j, s1, g_lraw)
+                    a = g_acc[j] + g_drift[j] * dt
+                    g_acc[j] = a
+                    _advance(j, s1 + a, g_s, s0row, g_ref, g_on, g_off, crs)
+            elif use_leak:
+                for j in range(gw):
+                    s1, b = _finite(g_log[j])
+                    nbad += b
                     a = g_acc[j] + g_drift[j] * dt
                     g_acc[j] = a
                     _advance(j, s1 + a, g_s, s0row, g_ref, g_on, g_off, crs)
