@@ -78,15 +78,16 @@ def test_streaming_in_chunks_matches_one_call():
 def test_events_do_not_depend_on_the_row_grouping(monkeypatch, effects):
     """The kernel advances groups of rows (rdnet.sim.sensor.row_group): one row per group,
     three (the last group shorter) or all 13 give the same events in the same order."""
+    import dataclasses
+
     import rdnet.sim.sensor as sensor_mod
+    from rdnet.calib.effects import ideal
     from rdnet.sim.settings import DegradeConfig
     rng = np.random.default_rng(11)
     frames = np.clip(rng.uniform(0.05, 1, (1, 13, 37)) * (1 + 0.6 * np.sin(
         np.arange(80)[:, None, None] * 0.3 + rng.uniform(0, 6, (1, 13, 37)))), 0, 1).astype(np.float32)
     t = np.cumsum(rng.integers(200, 900, size=80)).astype(np.int64)
-    degrade = DegradeConfig(**{**{k: 0.0 for k in ("threshold_sigma", "cutoff_hz", "refractory_us", "shot_noise_hz",
-                                                   "leak_hz", "hot_pixel_fraction", "hot_pixel_hz", "jitter_us",
-                                                   "latency_us", "sample_period_us")}, **effects})
+    degrade = dataclasses.replace(ideal(DegradeConfig()), **effects)     # every other effect off
     runs = {}
     for pixels in (1, 3 * 37, 10_000):
         monkeypatch.setattr(sensor_mod, "GROUP_PIXELS", pixels)
