@@ -9,7 +9,10 @@ The wall time includes loading the recording and upsampling its frames. The DAVI
 recording is also timed as a user runs it: ``rdnet calibrate`` in its own process, with
 its report figures (imports, numba's cached compilation, plots and writing included). The machine's
 load average is recorded with each run (the 2 cores may be shared), and so is the CPU time
-of the process.
+of the process. ``machine.reference_kernel_ns`` times a fixed workload on the host at the end
+of the run (``bench_sensor_groups.host_reference``: the pixel kernel on the calibration's
+sample shape, one thread), so that runs on different hosts or at different moments can be put
+side by side.
 
 The cost of a diagnosis grows with the number of simulations (candidates x search points
 x seeds) times the simulated pixel-frames (sampled pixels x upsampled frames), not with
@@ -123,9 +126,10 @@ def main() -> None:
                      "meets_goal": run["wall_s"] / n * 1e6 <= 60.0,
                      "named": run["named"], "heldout_before_after": [run["heldout_before"], run["heldout_after"]]})
         log.info("%s", rows[-1])
-    from bench_sensor_groups import cpu_model
+    from bench_sensor_groups import cpu_model, host_reference
     out = {"benchmark": "calibrate", "machine": {"cpu": cpu_model(), "cpus": os.cpu_count(),
-                                                  "python": platform.python_version(), "platform": platform.platform()},
+                                                  "python": platform.python_version(), "platform": platform.platform(),
+                                                  "reference_kernel_ns": host_reference()},
            "calibrate_config": to_dict(cfg), "results": rows}
     args.results.parent.mkdir(parents=True, exist_ok=True)
     if args.results.exists():       # keep the hand-recorded history (before_redesign, ...)

@@ -46,6 +46,23 @@ def cpu_model() -> str:
     return platform.processor() or "unknown"
 
 
+def host_reference(rounds: int = 5) -> float:
+    """How fast this host is right now, in a unit other benchmarks can record beside their
+    own times: ns per pixel-step of the ideal sensor's kernel on the calibration's DAVIS346
+    sample shape (130 x 173, 600 frames, one numba thread, best of ``rounds``). Rounds on
+    different hosts or at different moments compare better divided by it."""
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        lin, t = frames(130, 173, 600, np.random.default_rng(130173))
+        degrade = ideal(DegradeConfig())
+        run(lin[:3], t[:3], degrade, sensor_mod.GROUP_PIXELS, 1)
+        best, _, _ = run(lin, t, degrade, sensor_mod.GROUP_PIXELS, rounds)
+    finally:
+        numba.set_num_threads(threads)
+    return best / (599 * 130 * 173) * 1e9
+
+
 def frames(h: int, w: int, steps: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Linear frames of a drifting texture, 1 ms apart: about 0.03 events per pixel and step."""
     base = rng.uniform(0.05, 1.0, (h, w)).astype(np.float32)
