@@ -206,6 +206,14 @@ def _lowpass(lp, decay, j, s1, lraw):
 
 
 @njit(cache=True, inline="always")
+def _leaked(acc, drift, j, s1, dt):
+    """``s1`` plus pixel j's leak offset, which grows by ``drift[j] dt`` over the step."""
+    a = acc[j] + drift[j] * dt
+    acc[j] = a
+    return s1 + a
+
+
+@njit(cache=True, inline="always")
 def _flat(a, p0, n):
     """Pixels p0 .. p0 + n - 1 of ``a`` ((H, W) or a (H, W) frame), C-contiguous, flat: a view."""
     return a.reshape(a.size)[p0:p0 + n]
@@ -292,17 +300,13 @@ def _pixel_kernel(logf, decay, lin, use_lp, use_leak, use_shot, shot_a, shot_b, 
                 for j in range(gw):
                     s1, b = _finite(g_log[j])
                     nbad += b
-                    s1 = _lowpass(g_lp, g_dec, j, s1, g_lraw)
-                    a = g_acc[j] + g_drift[j] * dt
-                    g_acc[j] = a
-                    _advance(j, s1 + a, g_s, s0row, g_ref, g_on, g_off, crs)
-            elif use_leak:
+                    s1 = _leaked(g_acc, g_drift, j, _lowpass(g_lp, g_dec, j, s1, g_lraw), dt)
+                    _advance(j, s1, g_s, s0row, g_ref, g_on, g_off, crs)
+            elif use_leak:              # a loop of its own: the use_lp test inside kept it scalar
                 for j in range(gw):
                     s1, b = _finite(g_log[j])
                     nbad += b
-                    a = g_acc[j] + g_drift[j] * dt
-                    g_acc[j] = a
-                    _advance(j, s1 + a, g_s, s0row, g_ref, g_on, g_off, crs)
+                    _advance(j, _leaked(g_acc, g_drift, j, s1, dt), g_s, s0row, g_ref, g_on, g_off, crs)
             elif use_lp:
                 for j in range(gw):
                     s1, b = _finite(g_log[j])
