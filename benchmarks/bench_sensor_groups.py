@@ -73,12 +73,17 @@ def frames(h: int, w: int, steps: int, rng: np.random.Generator) -> tuple[np.nda
 
 
 def run(lin, t, degrade, group_pixels: int, rounds: int) -> tuple[float, np.ndarray, int]:
-    """Best time of ``rounds`` (s) of the kernel over every frame but the first, the events, the group."""
-    sensor_mod.GROUP_PIXELS = group_pixels
+    """Best time of ``rounds`` (s) of the kernel over every frame but the first, the events, the
+    group (``GROUP_PIXELS`` set to ``group_pixels`` for the sensors made here, then put back)."""
     log = np.log(lin + np.float32(SensorConfig().log_eps))
     best, events, group = float("inf"), None, 0
+    default = sensor_mod.GROUP_PIXELS
     for _ in range(rounds):
-        s = Sensor(lin.shape[2], lin.shape[1], SensorConfig(), degrade, np.random.default_rng(1))
+        sensor_mod.GROUP_PIXELS = group_pixels
+        try:
+            s = Sensor(lin.shape[2], lin.shape[1], SensorConfig(), degrade, np.random.default_rng(1))
+        finally:
+            sensor_mod.GROUP_PIXELS = default
         group = s._group
         s.step(lin[:1], t[:1])
         t0 = time.perf_counter()
@@ -112,7 +117,6 @@ def main() -> None:
                          "speedup": one / grouped, "events_per_pixel_step": len(ev_one) / n, "events_equal": True})
             print(f"{shape_name:42s} {eff_name:26s} g={group:3d} {rows[-1]['ns_per_pixel_step_one_row']:6.2f} -> "
                   f"{rows[-1]['ns_per_pixel_step_grouped']:6.2f} ns  x{rows[-1]['speedup']:.2f}", flush=True)
-    sensor_mod.GROUP_PIXELS = default
     out = {"benchmark": "sensor_groups", "machine": {"cpu": cpu_model(), "cpus": __import__("os").cpu_count(),
                                                      "python": platform.python_version(), "numba": numba.__version__},
            "group_pixels": default, "steps": args.steps, "rounds": args.rounds, "numba_threads": 1, "rows": rows}
