@@ -99,6 +99,18 @@ def test_events_do_not_depend_on_the_row_grouping(monkeypatch, effects):
         assert np.array_equal(runs[g].array, runs[1].array), g
 
 
+def test_row_group_makes_about_a_page_of_pixels():
+    """Rows per kernel group: ceil(GROUP_PIXELS / width), at least 1, at most the height."""
+    from rdnet.sim.sensor import GROUP_PIXELS, row_group
+    assert GROUP_PIXELS == 1024
+    assert row_group(173, 130) == 6          # the calibration's DAVIS346 sample: 1038 pixels
+    assert row_group(64, 64) == 16           # a proof scene
+    assert row_group(346, 260) == 3
+    assert row_group(1280, 720) == 1 and row_group(1024, 10) == 1
+    assert row_group(5, 7) == 7              # the whole frame
+    assert row_group(1, 1) == 1
+
+
 def test_bad_input_raises_and_keeps_state():
     s = Sensor(4, 3)
     good = np.full((2, 3, 4), 0.5, np.float32)
