@@ -27,7 +27,6 @@ import argparse
 import json
 import logging
 import os
-import platform
 import sys
 import tempfile
 import time
@@ -126,10 +125,9 @@ def main() -> None:
                      "meets_goal": run["wall_s"] / n * 1e6 <= 60.0,
                      "named": run["named"], "heldout_before_after": [run["heldout_before"], run["heldout_after"]]})
         log.info("%s", rows[-1])
-    from bench_sensor_groups import cpu_model, host_reference
-    out = {"benchmark": "calibrate", "machine": {"cpu": cpu_model(), "cpus": os.cpu_count(),
-                                                  "python": platform.python_version(), "platform": platform.platform(),
-                                                  "reference_kernel_ns": host_reference()},
+    from bench_sensor_groups import host_reference
+    from machine import machine
+    out = {"benchmark": "calibrate", "machine": {**machine(), "reference_kernel_ns": host_reference()},
            "calibrate_config": to_dict(cfg), "results": rows}
     args.results.parent.mkdir(parents=True, exist_ok=True)
     if args.results.exists():       # keep the hand-recorded history (before_redesign, ...)

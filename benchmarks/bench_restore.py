@@ -40,12 +40,13 @@ import argparse
 import json
 import logging
 import os
-import platform
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from machine import machine          # benchmarks/ is on sys.path (run as a script)
 
 ROOT = Path(__file__).resolve().parents[1]
 log = logging.getLogger("bench_restore")
@@ -187,8 +188,7 @@ def main() -> None:
     if args.steady == 1 or args.steady < 0:
         ap.error("--steady needs K >= 2 copies (or 0)")
     earlier = json.loads(args.out.read_text()) if args.out.is_file() else {}
-    results = {"benchmark": "restore", "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                                                   "platform": platform.platform()},
+    results = {"benchmark": "restore", "machine": machine(),
                "goal": "realtime_factor > 1 on davis346_road", "load_average_1min_before": os.getloadavg()[0],
                "recordings": {}}
     with tempfile.TemporaryDirectory() as tmp:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import platform
+import sys
 import time
 from pathlib import Path
 
@@ -29,21 +29,13 @@ from rdnet.sim.sensor import Sensor
 from rdnet.sim.settings import DegradeConfig, SensorConfig
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from machine import machine  # noqa: E402
 SHAPES = {"calibration sample (DAVIS346, stride 2)": (130, 173), "search sample (stride 4)": (65, 87),
           "proof scene": (64, 64), "DAVIS346 frame": (260, 346)}
 EFFECTS = {"ideal": {}, "bandwidth (cutoff 200 Hz)": {"cutoff_hz": 200.0},
            "shot noise 2 Hz": {"shot_noise_hz": 2.0}, "refractory 0.5 ms": {"refractory_us": 500.0},
            "leak 0.5 Hz": {"leak_hz": 0.5}}
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def host_reference(rounds: int = 5) -> float:
@@ -117,8 +109,7 @@ def main() -> None:
                          "speedup": one / grouped, "events_per_pixel_step": len(ev_one) / n, "events_equal": True})
             print(f"{shape_name:42s} {eff_name:26s} g={group:3d} {rows[-1]['ns_per_pixel_step_one_row']:6.2f} -> "
                   f"{rows[-1]['ns_per_pixel_step_grouped']:6.2f} ns  x{rows[-1]['speedup']:.2f}", flush=True)
-    out = {"benchmark": "sensor_groups", "machine": {"cpu": cpu_model(), "cpus": __import__("os").cpu_count(),
-                                                     "python": platform.python_version(), "numba": numba.__version__},
+    out = {"benchmark": "sensor_groups", "machine": {**machine(), "numba": numba.__version__},
            "group_pixels": default, "steps": args.steps, "rounds": args.rounds, "numba_threads": 1, "rows": rows}
     write_json(args.out.with_suffix(".json"), out)
     lines = ["# Pixel kernel: groups of rows against one row per group",
