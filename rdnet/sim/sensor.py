@@ -930,7 +930,7 @@ class Sensor:
         # on a held frame, starts from its own guess instead of overflowing and running the
         # kernel twice); grown further on overflow
         self._ensure_cap(max(256, self.width * self._group * t.size // 2))
-        seg = np.zeros((t.size, self.height), np.int64)
+        seg = np.empty((t.size, self.height), np.int64)      # the kernel sets every entry
         while True:
             out_t, out_x, out_p = self._bufs
             _pixel_kernel(logf, decay, lin, self._lp_coef > 0, self._use_leak, self._shot_a > 0,
