@@ -37,15 +37,15 @@ QUANTILES = (0.1, 0.25, 0.5, 0.75, 0.9, 0.99)
 
 
 def streams(case_name: str, duration_scale: int, seed: int, truth_seeds: list[int]) -> tuple[dict, object]:
-    from rdnet.calib.proof import TRUTH_PREROLL_US, TRUTH_WARMUP_US, case_draws, cases_for, make_recording
+    from rdnet.calib.proof import TRUTH_PREROLL_US, TRUTH_WARMUP_US, block_draws, cases_for, make_recording
     from rdnet.calib.scene import SceneSpec
     from rdnet.sim.settings import SensorConfig
     todo = cases_for("both")
     out = {}
     spec0 = SceneSpec()
     spec = dataclasses.replace(spec0, duration_us=spec0.duration_us * duration_scale)
-    rng = np.random.default_rng(seed)                  # the circuit block's draws: its null's texture, for both
-    tex = {c.name: case_draws(c, spec0, rng) for c in todo["circuit"]}["circuit_" + case_name][0]
+    # the circuit block's draws (as the stage takes them): its null's texture, for both generators
+    tex = {c.name: d for c, d in block_draws(todo["circuit"], spec0, seed)}["circuit_" + case_name][0]
     for gen, block_cases, name, oversample in (("circuit", todo["circuit"], "circuit_" + case_name, 1),
                                                ("rdnet", todo["rdnet"], case_name, 4)):
         case = next(c for c in block_cases if c.name == name)

@@ -47,8 +47,8 @@ import numpy as np
 import yaml
 
 from rdnet.calib.calibrate import calibrate, calibration_interpolation, numba_threads
-from rdnet.calib.proof import (TRUTH_PREROLL_US, TRUTH_WARMUP_US, case_draws, case_metrics, case_spec,
-                               cases_for, make_recording, proof_metrics)
+from rdnet.calib.proof import (TRUTH_PREROLL_US, TRUTH_WARMUP_US, block_draws, case_metrics, case_spec,
+                               cases_for, make_recording, proof_metrics, run_jobs)
 from rdnet.calib.scene import SceneSpec, render
 from rdnet.config import section
 from rdnet.eval.report import write_text_atomic
@@ -118,15 +118,9 @@ def run_job(job) -> dict:
 
 def jobs_for(blocks, names, seed, cfg, interp, frames, duration_scale=1, reports=None):
     todo = cases_for("both")
-    jobs = []
-    for block in blocks:
-        cases = todo["circuit" if block == "circuit" else "rdnet"]
-        rng = np.random.default_rng(seed)          # the stage's draws: every case of the block, in order
-        for c in cases:
-            d = case_draws(c, SceneSpec(), rng)
-            if names is None or c.name in names:
-                jobs.append((block, c, d, cfg, interp, frames, duration_scale, reports))
-    return jobs
+    return [(block, c, d, cfg, interp, frames, duration_scale, reports) for block in blocks   # the stage's draws
+            for c, d in block_draws(todo["circuit" if block == "circuit" else "rdnet"], SceneSpec(), seed)
+            if names is None or c.name in names]
 
 
 PROOF = ROOT / "results" / "calibration" / "proof"
@@ -320,15 +314,7 @@ def main() -> None:
     jobs = jobs_for(blocks, None if args.cases is None else set(args.cases), args.seed, cfg, interp, args.frames,
                     args.duration_scale, args.reports)
     t0 = time.perf_counter()
-    if args.workers <= 1:
-        rows = [run_job(j) for j in jobs]
-    else:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
-        order = sorted(range(len(jobs)), key=lambda i: jobs[i][0] != "circuit")      # slow circuit cases first
-        with ProcessPoolExecutor(max_workers=args.workers, mp_context=mp.get_context("fork")) as ex:
-            futures = {i: ex.submit(run_job, jobs[i]) for i in order}
-            rows = [futures[i].result() for i in range(len(jobs))]
+    rows = run_jobs(run_job, jobs, args.workers, first=lambda job: job[0] == "circuit")   # slow circuit cases first
     wall = time.perf_counter() - t0
     summaries, old_summaries = {}, {}
     for block in blocks:

@@ -37,7 +37,7 @@ import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -489,26 +489,35 @@ def _run_job(job: tuple) -> dict:
     return run_case(case, draws, block.out_dir, **block.kw)
 
 
+def block_draws(cases: Sequence[ProofCase], spec: SceneSpec, seed: int) -> list[tuple[ProofCase, tuple]]:
+    """Every case of a block with its :func:`case_draws`, taken in the block's order from a
+    fresh ``default_rng(seed)``: a case's draws do not depend on which cases run."""
+    rng = np.random.default_rng(seed)
+    return [(c, case_draws(c, spec, rng)) for c in cases]
+
+
+def run_jobs(fn: Callable, jobs: Sequence, workers: int = 1, first: Callable | None = None) -> list:
+    """``[fn(job) for job in jobs]`` in ``workers`` forked processes (in this one with one
+    worker), the jobs for which ``first(job)`` holds submitted first (the slow circuit cases);
+    the results in the order of ``jobs``."""
+    if workers <= 1 or len(jobs) <= 1:
+        return [fn(j) for j in jobs]
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+    order = sorted(range(len(jobs)), key=lambda i: not first(jobs[i])) if first else range(len(jobs))   # stable
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=mp.get_context("fork")) as ex:
+        futures = {i: ex.submit(fn, jobs[i]) for i in order}
+        return [futures[i].result() for i in range(len(jobs))]
+
+
 def run_blocks(blocks: Sequence[Block], seed: int, workers: int = 1) -> dict[str, dict]:
     """:func:`run_proof` of every block, each from its own ``default_rng(seed)``; returns
     ``{block.key: metrics}`` in the order of ``blocks``. The cases of all blocks run in
     ``workers`` processes, the slow circuit cases first (each case's draws are taken in
-    the block's order beforehand, :func:`case_draws`, so the results equal a serial run's)."""
-    jobs = []
-    for b in blocks:
-        rng = np.random.default_rng(seed)
-        spec = b.kw.get("spec", SceneSpec())
-        jobs += [(b, c, d) for c, d in [(c, case_draws(c, spec, rng)) for c in b.cases]
-                 if b.only is None or c.name in b.only]
-    if workers <= 1 or len(jobs) <= 1:
-        rows = [_run_job(j) for j in jobs]
-    else:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
-        first = sorted(range(len(jobs)), key=lambda i: jobs[i][1].generator != "circuit")   # stable
-        with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=mp.get_context("fork")) as ex:
-            futures = {i: ex.submit(_run_job, jobs[i]) for i in first}
-            rows = [futures[i].result() for i in range(len(jobs))]
+    the block's order beforehand, :func:`block_draws`, so the results equal a serial run's)."""
+    jobs = [(b, c, d) for b in blocks for c, d in block_draws(b.cases, b.kw.get("spec", SceneSpec()), seed)
+            if b.only is None or c.name in b.only]
+    rows = run_jobs(_run_job, jobs, workers, first=lambda job: job[1].generator == "circuit")
     out, k = {}, 0
     for b in blocks:
         n = len(b.to_run)
