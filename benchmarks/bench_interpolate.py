@@ -38,7 +38,7 @@ import numpy as np
 
 from rdnet.config import load_params, section
 from rdnet.sim.interpolate import (InterpolateConfig, PairInterpolator, UpsampleStats, _remap,
-                                   interpolate_pair, step_sizes, upsample_all)
+                                   _warp_map, interpolate_pair, step_sizes, upsample_all)
 from rdnet.sim.scenes import ScenesConfig, make_specs, render_sequence, render_split
 
 BOUND, EPS, DARK = 0.1, 0.01, 0.05
@@ -151,12 +151,12 @@ class HardMaskInterpolator(PairInterpolator):
 
     def frame(self, t: float) -> np.ndarray:
         t = np.float32(t)
-        f01, f10, o0, o1, gx, gy = self._prepare()
-        ft0 = -(1 - t) * t * f01 + t * t * f10
-        ft1 = (1 - t) * (1 - t) * f01 - t * (1 - t) * f10
-        g0, g1 = _remap(self.f0, gx, gy, ft0), _remap(self.f1, gx, gy, ft1)
-        w1 = t * (1 - _remap(o0, gx, gy, ft0)) + 1e-4 * t
-        w0 = (1 - t) * (1 - _remap(o1, gx, gy, ft1)) + 1e-4 * (1 - t)
+        f01, f10, o0, o1, grid = self._prepare()
+        m0 = _warp_map(grid, -(1 - t) * t * f01 + t * t * f10)
+        m1 = _warp_map(grid, (1 - t) * (1 - t) * f01 - t * (1 - t) * f10)
+        g0, g1 = _remap(self.f0, m0), _remap(self.f1, m1)
+        w1 = t * (1 - _remap(o0, m0)) + 1e-4 * t
+        w0 = (1 - t) * (1 - _remap(o1, m1)) + 1e-4 * (1 - t)
         return np.maximum((w0 * g0 + w1 * g1) / (w0 + w1), 0).astype(np.float32)
 
 
@@ -176,7 +176,7 @@ def causes(seqs960: dict, factor: int) -> list[dict]:
             for a, b in zip(keep[:-1], keep[1:]):
                 pi = cls(ims[a], ims[b], cfg)
                 pred += list(pi.frames(factor - 1)) + [ims[b]]
-                _, _, o0, o1, _, _ = pi._prepare()
+                _, _, o0, o1, _ = pi._prepare()
                 m = cv2.dilate(((o0 > 0) | (o1 > 0)).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
                 occ += [m] * factor
             pred = np.asarray(pred)

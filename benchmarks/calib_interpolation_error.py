@@ -73,11 +73,11 @@ def checked_flow(tau: float = 0.3):
         out = plain(self, t)
         if self.cfg.method != "flow":
             return out
-        f01, f10, _, _, gx, gy = self._prepare()
+        f01, f10, _, _, grid = self._prepare()
         if not hasattr(self, "_linear_mask"):
             e = np.float32(EPS)
-            r1 = np.abs(np.log(self.f1 + e) - np.log(interp._remap(self.f0, gx, gy, f10) + e))
-            r0 = np.abs(np.log(self.f0 + e) - np.log(interp._remap(self.f1, gx, gy, f01) + e))
+            r1 = np.abs(np.log(self.f1 + e) - np.log(interp._remap(self.f0, interp._warp_map(grid, f10)) + e))
+            r0 = np.abs(np.log(self.f0 + e) - np.log(interp._remap(self.f1, interp._warp_map(grid, f01)) + e))
             fade = np.abs(np.log(self.f1 + e) - np.log(self.f0 + e))
             bad = np.maximum(r0, r1) > np.minimum(fade, tau)
             self._linear_mask = cv2.dilate(bad.astype(np.float32), np.ones((3, 3), np.uint8))

@@ -34,13 +34,13 @@ def clamped_remap(block: int):
     kernel = np.ones((block, block), np.uint8)
     anchor = (block // 2 - 1, block // 2 - 1)
 
-    def remap(img, gx, gy, flow, interpolation=cv2.INTER_LINEAR, clamp=False):
-        out = plain(img, gx, gy, flow, interpolation)
+    def remap(img, warp_map, interpolation=cv2.INTER_LINEAR, clamp=False, bounds=None):
+        out = plain(img, warp_map, interpolation)
         if interpolation != cv2.INTER_CUBIC:
             return out
         lo = cv2.erode(img, kernel, anchor=anchor, borderType=cv2.BORDER_REPLICATE)
         hi = cv2.dilate(img, kernel, anchor=anchor, borderType=cv2.BORDER_REPLICATE)
-        mx, my = np.floor(gx + flow[..., 0]), np.floor(gy + flow[..., 1])
+        mx, my = np.floor(warp_map[..., 0]), np.floor(warp_map[..., 1])
         lo = cv2.remap(lo, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
         hi = cv2.remap(hi, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
         return np.clip(out, lo, hi)

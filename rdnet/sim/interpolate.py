@@ -491,24 +491,33 @@ def fit_to_size(cfg: InterpolateConfig, shape: tuple[int, ...], *, warn: bool = 
     return dataclasses.replace(cfg, method="linear")
 
 
-def _grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+def _grid(h: int, w: int) -> np.ndarray:
+    """(H, W, 2) float32 pixel coordinates (x, y): the sampling map of a zero flow."""
     gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    return gx, gy
+    return np.stack([gx, gy], axis=-1)
 
 
-def _remap(img: np.ndarray, gx: np.ndarray, gy: np.ndarray, flow: np.ndarray,
-           interpolation: int = cv2.INTER_LINEAR, clamp: bool = False,
-           bounds: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
-    """Backward warp: out(x) = img(x + flow(x)), borders replicated; bilinear unless
-    ``interpolation`` (an OpenCV flag, :data:`WARPS`) says otherwise. ``clamp``: each
-    sample clipped to the min / max of the 2 x 2 source pixels around it (those a bilinear
-    warp reads, borders replicated), so an interpolation kernel with negative lobes cannot
-    overshoot an edge; ``bounds``: :func:`_block_bounds` of ``img`` when already computed
-    (a pair's frames are warped once per inserted frame)."""
-    mx, my = gx + flow[..., 0], gy + flow[..., 1]
-    out = cv2.remap(img, mx, my, interpolation, borderMode=cv2.BORDER_REPLICATE)
+def _warp_map(grid: np.ndarray, flow: np.ndarray) -> np.ndarray:
+    """The sampling map ``x + flow(x)`` of :func:`_remap`, (H, W, 2) float32, one
+    contiguous add (the same float32 sums as adding each coordinate on its own); a frame and
+    its occlusion mask warped by the same flow share it."""
+    return grid + flow
+
+
+def _remap(img: np.ndarray, warp_map: np.ndarray, interpolation: int = cv2.INTER_LINEAR,
+           clamp: bool = False, bounds: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """Backward warp: out(x) = img(x + flow(x)) for ``warp_map`` = :func:`_warp_map` of
+    the flow, borders replicated; bilinear unless ``interpolation`` (an OpenCV flag,
+    :data:`WARPS`) says otherwise. ``clamp``: each sample clipped to the min / max of the
+    2 x 2 source pixels around it (those a bilinear warp reads, borders replicated), so an
+    interpolation kernel with negative lobes cannot overshoot an edge; ``bounds``:
+    :func:`_block_bounds` of ``img`` when already computed (a pair's frames are warped once
+    per inserted frame). OpenCV takes the map as one two-channel array: the same samples as
+    separate x and y maps, bit for bit, without splitting the flow's channels."""
+    out = cv2.remap(img, warp_map, None, interpolation, borderMode=cv2.BORDER_REPLICATE)
     if not clamp:
         return out
+    mx, my = warp_map[..., 0], warp_map[..., 1]
     lo, hi = _block_bounds(img) if bounds is None else bounds
     # block (i, j) of the bounds covers source rows i - 1, i and columns j - 1, j: the
     # 2 x 2 pixels at floor(my), floor(my) + 1 and floor(mx), floor(mx) + 1 are block
@@ -531,10 +540,10 @@ def _block_bounds(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.minimum(np.minimum(a, b), np.minimum(c, d)), np.maximum(np.maximum(a, b), np.maximum(c, d))
 
 
-def _occluded(f01: np.ndarray, f10: np.ndarray, gx, gy) -> np.ndarray:
+def _occluded(f01: np.ndarray, f10: np.ndarray, grid: np.ndarray) -> np.ndarray:
     """Sundaram et al. 2010 forward-backward check: float32 mask of the pixels of the first
     frame whose forward flow is not undone by the backward flow (occluded / unreliable)."""
-    back = _remap(f10, gx, gy, f01)
+    back = _remap(f10, _warp_map(grid, f01))
     d = f01 + back
     lhs = _sq_norm(d)
     rhs = _FB_ALPHA1 * (_sq_norm(f01) + _sq_norm(back)) + _FB_ALPHA2
@@ -617,9 +626,9 @@ class PairInterpolator:
             self._logs = tuple(lg[::s, ::s] for lg in logs)
         self._grid = int(s)
         if full is not None:
-            f01, f10, o0, o1, gx, gy = full
+            f01, f10, o0, o1, grid = full
             self._flows = (np.ascontiguousarray(f01[::s, ::s]), np.ascontiguousarray(f10[::s, ::s]), o0, o1,
-                           np.ascontiguousarray(gx[::s, ::s]), np.ascontiguousarray(gy[::s, ::s]))
+                           np.ascontiguousarray(grid[::s, ::s]))
         try:
             yield self
         finally:
@@ -634,12 +643,12 @@ class PairInterpolator:
             _check_flow_size(y0.shape)
             u0, u1 = _flow_u8(y0), _flow_u8(y1)   # encoded once for both directions
             f01, f10 = _flows_both_ways(u0, u1, self.cfg)   # in parallel
-            gx, gy = _grid(*y0.shape)
+            grid = _grid(*y0.shape)
             if self.cfg.occlusion:
-                o0, o1 = _occluded(f01, f10, gx, gy), _occluded(f10, f01, gx, gy)
+                o0, o1 = _occluded(f01, f10, grid), _occluded(f10, f01, grid)
             else:
                 o0 = o1 = None
-            self._flows = (f01, f10, o0, o1, gx, gy)
+            self._flows = (f01, f10, o0, o1, grid)
         return self._flows
 
     def motion_estimate(self, log_eps: float, quantile: float = 1.0) -> float:
@@ -697,29 +706,48 @@ class PairInterpolator:
         return self._bounds
 
     def _warped(self, t: np.float32) -> np.ndarray:
-        """The flow frame at ``t`` (module docstring)."""
+        """The flow frame at ``t`` (module docstring). The arithmetic runs in place where it
+        can, each operation the same float32 one as the plain expressions in the comments."""
         f0, f1 = self.f0, self.f1
-        f01, f10, o0, o1, gx, gy = self._prepare()
-        ft0 = -(1 - t) * t * f01 + t * t * f10          # Super SloMo Eq. 4
-        ft1 = (1 - t) * (1 - t) * f01 - t * (1 - t) * f10
+        f01, f10, o0, o1, grid = self._prepare()
+        # Super SloMo Eq. 4: ft0 = -(1 - t) t F01 + t^2 F10, ft1 = (1 - t)^2 F01 - t (1 - t) F10
+        tmp = np.empty_like(f01)
+        m0 = np.multiply(f01, -(1 - t) * t)
+        m0 += np.multiply(f10, t * t, out=tmp)
+        m0 += grid                                                    # _warp_map(grid, ft0)
+        m1 = np.multiply(f01, (1 - t) * (1 - t))
+        m1 -= np.multiply(f10, t * (1 - t), out=tmp)
+        m1 += grid
         warp, clamp = WARPS[self.cfg.warp]
         b0, b1 = self._clamp_bounds() if clamp else (None, None)
-        g0 = _remap(f0, gx, gy, ft0, warp, clamp, b0)
-        g1 = _remap(f1, gx, gy, ft1, warp, clamp, b1)
-        w0 = np.full(gx.shape, 1 - t, np.float32)
-        w1 = np.full(gx.shape, t, np.float32)
+        g0 = _remap(f0, m0, warp, clamp, b0)
+        g1 = _remap(f1, m1, warp, clamp, b1)
         if o0 is not None:
             # content of frame 0 that becomes occluded is invisible in g1 and vice versa;
             # the occlusion happens at an unknown time, uniform in the interval, so the
             # expected visibility of g0 is 1 - t o1 and that of g1 is 1 - (1 - t) o0: the
             # frame stays continuous at both ends (a hard mask would swap sources at t = 0+)
-            w1 = w1 * (1 - (1 - t) * _remap(o0, gx, gy, ft0)) + 1e-4 * t
-            w0 = w0 * (1 - t * _remap(o1, gx, gy, ft1)) + 1e-4 * (1 - t)
+            w1 = _remap(o0, m0)                   # w1 = t (1 - (1 - t) o0(m0)) + 1e-4 t
+            w1 *= 1 - t
+            np.subtract(1, w1, out=w1)
+            w1 *= t
+            w1 += 1e-4 * t
+            w0 = _remap(o1, m1)                   # w0 = (1 - t) (1 - t o1(m1)) + 1e-4 (1 - t)
+            w0 *= t
+            np.subtract(1, w0, out=w0)
+            w0 *= 1 - t
+            w0 += 1e-4 * (1 - t)
+        else:
+            w0 = np.full(grid.shape[:2], 1 - t, np.float32)
+            w1 = np.full(grid.shape[:2], t, np.float32)
         s = w0 + w1
-        w0, w1 = w0 / s, w1 / s
+        w0 /= s
+        w1 /= s
         if self.color:
             w0, w1 = w0[..., None], w1[..., None]
-        return np.maximum(w0 * g0 + w1 * g1, 0).astype(np.float32)
+        out = np.multiply(w0, g0, out=g0)                            # w0 g0 + w1 g1
+        out += w1 * g1
+        return np.maximum(out, 0, out=out)
 
     def frames(self, n_inserted: int) -> np.ndarray:
         """(n_inserted, H, W[, 3]) frames at t = k / (n_inserted + 1), k = 1..n_inserted."""

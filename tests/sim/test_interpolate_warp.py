@@ -10,7 +10,8 @@ from rdnet.calib.calibrate import calibration_interpolation, interpolation_confi
 from rdnet.calib.settings import CalibrateConfig
 from rdnet.config import from_dict
 from rdnet.errors import ConfigError
-from rdnet.sim.interpolate import InterpolateConfig, PairFlowCache, PairInterpolator, _grid, _remap, interpolate_pair
+from rdnet.sim.interpolate import (InterpolateConfig, PairFlowCache, PairInterpolator, _grid, _remap, _warp_map,
+                                   interpolate_pair)
 
 INNER = (slice(8, -8), slice(8, -8))
 
@@ -60,16 +61,34 @@ def test_the_clamp_removes_the_bicubic_overshoot_at_a_sharp_edge():
     above the bright side); clamped to the 2 x 2 source pixels, every sample lies inside the
     range of the pixels bilinear reads, and the edge pixel keeps bicubic's value."""
     img = np.repeat(np.where(np.arange(32)[None, :] < 16, 0.9, 0.01).astype(np.float32), 8, axis=0)
-    gx, gy = _grid(*img.shape)
     flow = np.zeros(img.shape + (2,), np.float32)
     flow[..., 0] = 0.4
-    ringing = _remap(img, gx, gy, flow, cv2.INTER_CUBIC)
-    clamped = _remap(img, gx, gy, flow, cv2.INTER_CUBIC, clamp=True)
+    m = _warp_map(_grid(*img.shape), flow)
+    ringing = _remap(img, m, cv2.INTER_CUBIC)
+    clamped = _remap(img, m, cv2.INTER_CUBIC, clamp=True)
     assert ringing.min() < 0.0 and ringing.max() > 0.95                     # measured -0.086, 0.964
     assert clamped.min() == pytest.approx(0.01) and clamped.max() == pytest.approx(0.9)
     np.testing.assert_array_equal(clamped[:, 15], ringing[:, 15])          # inside its block's range
     np.testing.assert_array_equal(clamped[:, 14], img[:, 14])              # the overshoot, clipped to 0.9
-    assert np.array_equal(_remap(img, gx, gy, flow, cv2.INTER_LINEAR, clamp=True), _remap(img, gx, gy, flow))
+    assert np.array_equal(_remap(img, m, cv2.INTER_LINEAR, clamp=True), _remap(img, m))
+
+
+@pytest.mark.parametrize("interpolation", [cv2.INTER_LINEAR, cv2.INTER_CUBIC])
+@pytest.mark.parametrize("shape", [(37, 53), (21, 30, 3)])
+def test_the_two_channel_warp_map_samples_as_separate_x_and_y_maps(interpolation, shape):
+    """``_remap`` hands OpenCV one (H, W, 2) map (``_warp_map``: grid + flow in one add); its
+    output equals the warp by separate x and y maps, each coordinate added on its own, bit for
+    bit, on a random flow that reaches past the borders."""
+    rng = np.random.default_rng(11)
+    img = rng.random(shape, dtype=np.float32)
+    flow = (rng.standard_normal(shape[:2] + (2,)) * 4).astype(np.float32)
+    grid = _grid(*shape[:2])
+    assert grid.shape == shape[:2] + (2,) and grid[3, 5].tolist() == [5.0, 3.0]
+    m = _warp_map(grid, flow)
+    gx, gy = np.ascontiguousarray(grid[..., 0]), np.ascontiguousarray(grid[..., 1])
+    ref = cv2.remap(img, gx + flow[..., 0], gy + flow[..., 1], interpolation, borderMode=cv2.BORDER_REPLICATE)
+    out = _remap(img, m, interpolation)
+    assert out.shape == img.shape and np.array_equal(out, ref)
 
 
 @pytest.mark.parametrize("shape", [(9, 13), (7, 11, 3)])
@@ -81,7 +100,8 @@ def test_the_clamp_bounds_are_each_samples_own_2x2_source_pixels(shape):
     rng = np.random.default_rng(3)
     img = (rng.random(shape) ** 3).astype(np.float32)
     h, w = shape[:2]
-    gx, gy = _grid(h, w)
+    grid = _grid(h, w)
+    gx, gy = grid[..., 0], grid[..., 1]
     flow = (rng.standard_normal((h, w, 2)) * np.array([4.0, 3.0]) * rng.choice([0.1, 1, 5], (h, w, 1))
             ).astype(np.float32)
     flow[0, 0] = (-40.5, -30.25)                         # far beyond the top-left corner
@@ -91,10 +111,11 @@ def test_the_clamp_bounds_are_each_samples_own_2x2_source_pixels(shape):
     corners = [img[np.clip(y0 + dy, 0, h - 1), np.clip(x0 + dx, 0, w - 1)] for dy in (0, 1) for dx in (0, 1)]
     want = np.clip(cv2.remap(img, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE),
                    np.min(corners, axis=0), np.max(corners, axis=0))
-    got = _remap(img, gx, gy, flow, cv2.INTER_CUBIC, clamp=True)
+    m = _warp_map(grid, flow)
+    got = _remap(img, m, cv2.INTER_CUBIC, clamp=True)
     np.testing.assert_array_equal(got, want)
-    np.testing.assert_array_equal(_remap(img, gx, gy, flow, cv2.INTER_CUBIC, True, _block_bounds(img)), want)
-    assert not np.array_equal(got, _remap(img, gx, gy, flow, cv2.INTER_CUBIC))   # the clamp acted
+    np.testing.assert_array_equal(_remap(img, m, cv2.INTER_CUBIC, True, _block_bounds(img)), want)
+    assert not np.array_equal(got, _remap(img, m, cv2.INTER_CUBIC))   # the clamp acted
 
 
 def test_warp_settings_are_validated():
