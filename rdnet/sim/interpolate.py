@@ -601,6 +601,7 @@ class PairInterpolator:
             l3 = 2 * l2 - l1 if after is None else np.log(_as_float(after, "after") + e)
             self._logs = (l0, l1, l2, l3)
         self._grid = 1                          # the stride of ``on_grid`` while inside it
+        self._per_grid: dict = {}               # :meth:`_terms`
         self._shared = None
         if flows is not None:
             flows.share(index, self)
@@ -681,7 +682,20 @@ class PairInterpolator:
         if weight is None:
             return out
         still = self.crossfade(t) if self._logs is None else self.cubic(t)
-        return (weight * out + (1 - weight) * still).astype(np.float32)
+        still *= self._terms("still_weight", lambda: (1 - weight,))[0]
+        res = np.multiply(weight, out)              # ``out`` may be shared with another interpolator
+        res += still                                # weight out + (1 - weight) still
+        return res
+
+    def _terms(self, name: str, make) -> tuple:
+        """``make()``'s arrays, computed once per grid of :meth:`on_grid` (the blend inputs
+        and log frames it swaps in are the key) for the parts of the per-frame arithmetic
+        that do not depend on ``t``."""
+        key, src = (name, self._grid), (self._blend, self._logs)
+        entry = self._per_grid.get(key)
+        if entry is None or entry[0][0] is not src[0] or entry[0][1] is not src[1]:
+            entry = self._per_grid[key] = (src, make())
+        return entry[1]
 
     def crossfade(self, t: float) -> np.ndarray:
         """The linear blend ``(1 - t) f0 + t f1`` (method 'linear'), on the grid of
@@ -694,10 +708,22 @@ class PairInterpolator:
         """Method 'cubic': the Catmull-Rom spline of ``log(I + eps)`` through the four
         frames at ``t`` (``f0`` at 0, ``f1`` at 1; uniform knots), back to linear intensity
         (>= 0), on the grid of :meth:`on_grid` when inside it."""
-        p0, p1, p2, p3 = self._logs
+        def coefficients():
+            p0, p1, p2, p3 = self._logs
+            return (np.ascontiguousarray(p1), p2 - p0, 2 * p0 - 5 * p1 + 4 * p2 - p3, 3 * (p1 - p2) + p3 - p0)
+        # v = p1 + 0.5 t ((p2 - p0) + t ((2 p0 - 5 p1 + 4 p2 - p3) + t (3 (p1 - p2) + p3 - p0))),
+        # the same float32 operations in place, with the terms free of t computed once per grid
+        p1, c1, c2, c3 = self._terms("cubic", coefficients)
         t = np.float32(t)
-        v = p1 + np.float32(0.5) * t * ((p2 - p0) + t * ((2 * p0 - 5 * p1 + 4 * p2 - p3) + t * (3 * (p1 - p2) + p3 - p0)))
-        return np.maximum(np.exp(v) - self._eps, 0).astype(np.float32)
+        v = np.multiply(c3, t)
+        v += c2
+        v *= t
+        v += c1
+        v *= np.float32(0.5) * t
+        v += p1
+        np.exp(v, out=v)
+        v -= self._eps
+        return np.maximum(v, 0, out=v)
 
     def _clamp_bounds(self):
         """:func:`_block_bounds` of both frames, computed once per pair (``bicubic_clamped``)."""

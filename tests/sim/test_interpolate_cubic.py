@@ -66,6 +66,33 @@ def test_sampled_grid_equals_the_full_frame_sampled():
     np.testing.assert_array_equal(pi.frame(0.4), full)
 
 
+def _spline(f, t):
+    """The Catmull-Rom expression of ``PairInterpolator.cubic``, written out in float32."""
+    p0, p1, p2, p3 = (np.log(x + np.float32(EPS)) for x in f)
+    t = np.float32(t)
+    v = p1 + np.float32(0.5) * t * ((p2 - p0) + t * ((2 * p0 - 5 * p1 + 4 * p2 - p3) + t * (3 * (p1 - p2) + p3 - p0)))
+    return np.maximum(np.exp(v) - np.float32(EPS), 0).astype(np.float32)
+
+
+def test_the_terms_free_of_t_are_kept_per_grid():
+    """The spline's terms that do not depend on t are computed once per grid of ``on_grid``
+    and the frame is assembled in place: every frame equals the expression written out, bit
+    for bit, on the full grid, on two sampled grids, and on the full grid again after them."""
+    rng = np.random.default_rng(4)
+    f = rng.uniform(0.0, 0.9, (4, 11, 13)).astype(np.float32)
+    pi = PairInterpolator(f[1], f[2], CUBIC, before=f[0], after=f[3])
+    ts = (0.1, 0.5, 0.83)
+    for s in (1, 2, 3, 1, 2):
+        with pi.on_grid(s):
+            for t in ts:
+                got = pi.frame(t)
+                assert got.dtype == np.float32 and got.flags.writeable
+                np.testing.assert_array_equal(got, _spline(f[:, ::s, ::s], t))
+    got = pi.frame(0.5)
+    got[:] = -1                                          # a caller's change to a frame ...
+    np.testing.assert_array_equal(pi.frame(0.5), _spline(f, 0.5))    # ... stays out of the next
+
+
 def test_non_negative_and_bad_neighbour_shape():
     """An overshoot below black is clipped at 0 (linear intensity); a neighbour of another
     shape is refused by name."""
