@@ -192,6 +192,36 @@ def test_every_long_command_takes_no_progress():
         assert opts["--no-progress"].default is True, name
 
 
+@pytest.mark.parametrize("user_value,numpy_first,want_env,want_advice", [
+    (None, False, "0", False),       # the console script's default: numpy advises no huge pages
+    ("1", False, "1", True),         # the user's setting stands
+    ("0", False, "0", False),
+    (None, True, None, True),        # numpy already imported: nothing changes
+])
+def test_the_console_script_turns_numpys_huge_page_advice_off(user_value, numpy_first, want_env, want_advice):
+    """``entry`` calls :func:`rdnet.cli.small_pages` before anything imports numpy: it sets
+    ``NUMPY_MADVISE_HUGEPAGE=0`` unless the user set the variable, and numpy then advises no
+    transparent huge pages; with numpy already imported it changes nothing (numpy reads the
+    variable once). Each case in a fresh interpreter."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import sys\n" + ("import numpy\n" if numpy_first else "")
+            + "import rdnet.cli as cli\n"
+            + "assert ('numpy' in sys.modules) == " + str(numpy_first) + ", 'rdnet.cli imported numpy'\n"
+            + "off = cli.small_pages()\n"
+            + "import os, numpy\n"
+            + "print(off, os.environ.get('NUMPY_MADVISE_HUGEPAGE'), numpy._core.multiarray._get_madvise_hugepage())\n")
+    env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
+    if user_value is not None:
+        env["NUMPY_MADVISE_HUGEPAGE"] = user_value
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert r.returncode == 0, r.stderr
+    off, env_value, advice = r.stdout.split()
+    assert off == str(not want_advice) and env_value == str(want_env) and advice == str(want_advice)
+
+
 def test_the_console_script_exits_with_mains_code_and_leaves_the_garbage_to_the_os(monkeypatch):
     """``rdnet`` (``rdnet.cli:entry``) exits with :func:`main`'s code after freezing the
     garbage collector, so the interpreter's shutdown does not collect what the process is

@@ -87,14 +87,39 @@ def main(argv: list[str] | None = None) -> int:
     return int(rc or 0)
 
 
+#: numpy's transparent-huge-page advice for the console script: off unless the user's
+#: environment says otherwise (:func:`small_pages`)
+HUGEPAGE_ENV = "NUMPY_MADVISE_HUGEPAGE"
+
+
+def small_pages() -> bool:
+    """Ask numpy not to advise transparent huge pages for its large arrays, unless
+    ``NUMPY_MADVISE_HUGEPAGE`` is already set (then the user's choice stands) or numpy is
+    already imported (it reads the variable once, at import); True when the advice is off
+    for this process. Why: where the kernel backs an advised region with a fresh 2 MB page on
+    its first touch (``transparent_hugepage/defrag: madvise``, the default of many
+    distributions), and most of all in a virtual machine whose memory the host fills in
+    lazily, each such page costs far more than the 512 small pages it replaces, which the
+    kernel recycles from memory the process freed: a 50 MB numpy array took 176 ms to fill
+    the first time with the advice and 28-39 ms without it on the project's 2-core host,
+    and ``rdnet calibrate`` spent 2.0-2.6 s of system time against 1.2-1.4 s
+    (docs/benchmarks.md, "Huge pages")."""
+    if HUGEPAGE_ENV in os.environ or "numpy" in sys.modules:
+        return os.environ.get(HUGEPAGE_ENV) == "0"
+    os.environ[HUGEPAGE_ENV] = "0"
+    return True
+
+
 def entry() -> None:
     """The ``rdnet`` console script (and ``python -m rdnet.cli``): :func:`main`, then exit.
-    Before the interpreter shuts down, every live object is moved out of the garbage
-    collector's reach (``gc.freeze``): the shutdown otherwise spends its time collecting the
-    objects of a process that is about to end (0.3-0.5 s after ``rdnet calibrate``, about
-    a tenth of its run; ``benchmarks/results/calibrate.json``). Everything the command
-    wrote is closed and renamed by then, and atexit handlers still run. In-process callers
-    (tests, notebooks) call :func:`main`, which leaves the collector alone."""
+    Numpy's huge-page advice is turned off first (:func:`small_pages`). Before the
+    interpreter shuts down, every live object is moved out of the garbage collector's reach
+    (``gc.freeze``): the shutdown otherwise spends its time collecting the objects of a
+    process that is about to end (0.3-0.5 s after ``rdnet calibrate``, about a tenth of its
+    run; ``benchmarks/results/calibrate.json``). Everything the command wrote is closed and
+    renamed by then, and atexit handlers still run. In-process callers (tests, notebooks)
+    call :func:`main`, which leaves both alone."""
+    small_pages()
     rc = main()
     gc.freeze()
     sys.exit(rc)
