@@ -66,16 +66,12 @@ def frames(h: int, w: int, steps: int, rng: np.random.Generator) -> tuple[np.nda
 
 def run(lin, t, degrade, group_pixels: int, rounds: int) -> tuple[float, np.ndarray, int]:
     """Best time of ``rounds`` (s) of the kernel over every frame but the first, the events, the
-    group (``GROUP_PIXELS`` set to ``group_pixels`` for the sensors made here, then put back)."""
+    rows per group (the sensors' ``group_pixels``)."""
     log = np.log(lin + np.float32(SensorConfig().log_eps))
     best, events, group = float("inf"), None, 0
-    default = sensor_mod.GROUP_PIXELS
     for _ in range(rounds):
-        sensor_mod.GROUP_PIXELS = group_pixels
-        try:
-            s = Sensor(lin.shape[2], lin.shape[1], SensorConfig(), degrade, np.random.default_rng(1))
-        finally:
-            sensor_mod.GROUP_PIXELS = default
+        s = Sensor(lin.shape[2], lin.shape[1], SensorConfig(), degrade, np.random.default_rng(1),
+                   group_pixels=group_pixels)
         group = s._group
         s.step(lin[:1], t[:1])
         t0 = time.perf_counter()

@@ -85,20 +85,15 @@ _ZERO_I = np.zeros(1, np.int64)
 _EMPTY_F = np.empty(0)
 
 
-def _contiguous(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
-    """The per-pixel maps C-contiguous (the kernel reads them through flat views)."""
-    return tuple(np.ascontiguousarray(a) for a in arrays)
-
-
-def row_group(width: int, height: int) -> int:
-    """Rows per group of :func:`_pixel_kernel`: as many as make :data:`GROUP_PIXELS`
+def row_group(width: int, height: int, group_pixels: int = GROUP_PIXELS) -> int:
+    """Rows per group of :func:`_pixel_kernel`: as many as make ``group_pixels``
     pixels (at least 1, at most ``height``). The kernel advances a group step by step, so
     a step reads the group's rows of one frame, contiguous in memory, in one loop. One row
     per step (a 173-pixel row of the calibration's DAVIS346 pixel sample: 0.7 KB, and the
     next step's 90 KB further) took 4.2 ns per pixel and step, groups of 1038 pixels 2.9
     (ideal sensor, one thread; benchmarks/bench_sensor_groups.py). The events do not
     depend on it."""
-    return max(1, min(int(height), -(-GROUP_PIXELS // max(int(width), 1))))
+    return max(1, min(int(height), -(-int(group_pixels) // max(int(width), 1))))
 
 
 @njit(cache=True, inline="always")
@@ -700,11 +695,13 @@ class Sensor:
 
     ``rng`` (numpy Generator) is required when a random effect is on; it draws the
     per-sequence pixel parameters here and the noise/jitter of every chunk. The same seed
-    and the same chunking give bit-identical events.
+    and the same chunking give bit-identical events. ``group_pixels``: the pixel kernel's
+    memory layout (:func:`row_group`); the events do not depend on it.
     """
 
     def __init__(self, width: int, height: int, sensor: SensorConfig = SensorConfig(),
-                 degrade: DegradeConfig | None = None, rng: np.random.Generator | None = None):
+                 degrade: DegradeConfig | None = None, rng: np.random.Generator | None = None, *,
+                 group_pixels: int = GROUP_PIXELS):
         self.width, self.height = int(width), int(height)
         if self.width <= 0 or self.height <= 0:
             raise ValidationError("width/height", f"sensor size must be positive, got {width}x{height}")
@@ -715,10 +712,11 @@ class Sensor:
                                   f"{', '.join(degrade.active())}")
         self.rng = rng
         H, W = self.height, self.width
-        self.thr_on, self.thr_off = effects.pixel_thresholds(H, W, sensor, degrade, rng)
+        # C-contiguous: the pixel kernel reads the per-pixel maps through flat views
+        self.thr_on, self.thr_off = map(np.ascontiguousarray, effects.pixel_thresholds(H, W, sensor, degrade, rng))
         rates = effects.leak_rates(H, W, degrade, rng)
         self.leak_rate_hz = rates
-        self.drift = rates * self.thr_on * 1e-6            # log units per microsecond
+        self.drift = np.ascontiguousarray(rates * self.thr_on * 1e-6)      # log units per microsecond
         self._phase = effects.leak_phase(H, W, degrade, rng)
         self.hot_idx, self.hot_on = effects.hot_pixels(H, W, degrade, rng)
         self._lp_coef = effects.lowpass_coef(degrade)
@@ -747,7 +745,7 @@ class Sensor:
         self._state = (self.s_prev, self.lp, self.lraw, self.acc, self.ref, self.last_t, self.last_bin,
                        self.shot_hazard, self._noise_ctr)
         self._backup = tuple(np.empty_like(a) for a in self._state)
-        self._group = row_group(W, H)
+        self._group = row_group(W, H, group_pixels)
         n_groups = -(-H // self._group)
         self._counts = np.zeros(n_groups, np.int64)      # events per group of rows
         self._bad = np.zeros(n_groups, np.bool_)
@@ -936,7 +934,7 @@ class Sensor:
             _pixel_kernel(logf, decay, lin, self._lp_coef > 0, self._use_leak, self._shot_a > 0,
                           self._shot_a, self._shot_b, t, t0,
                           self.s_prev, self.lp, self.lraw, self.acc, self.ref, self.last_t, self.last_bin,
-                          self.shot_hazard, self._noise_ctr, self._noise_key, *_contiguous(self.thr_on, self.thr_off, self.drift),
+                          self.shot_hazard, self._noise_ctr, self._noise_key, self.thr_on, self.thr_off, self.drift,
                           float(self.degrade.refractory_us), float(self.degrade.sample_period_us),
                           out_t, out_x, out_p, seg, self._counts, self._bad, self._cap, self._group)
             bad = self._bad.any()

@@ -75,12 +75,12 @@ def test_streaming_in_chunks_matches_one_call():
     {}, {"shot_noise_hz": 3.0, "refractory_us": 400.0}, {"cutoff_hz": 150.0, "leak_hz": 0.5},
     {"sample_period_us": 300.0, "threshold_sigma": 0.05},
     {"hot_pixel_fraction": 0.05, "hot_pixel_hz": 40.0, "jitter_us": 200.0, "latency_us": 700.0}])
-def test_events_do_not_depend_on_the_row_grouping(monkeypatch, effects):
-    """The kernel advances groups of rows (rdnet.sim.sensor.row_group): one row per group,
-    three (the last group shorter) or all 13 give the same events in the same order."""
+def test_events_do_not_depend_on_the_row_grouping(effects):
+    """The kernel advances groups of rows (rdnet.sim.sensor.row_group, ``group_pixels``): one
+    row per group, three (the last group shorter) or all 13 give the same events in the same
+    order."""
     import dataclasses
 
-    import rdnet.sim.sensor as sensor_mod
     from rdnet.calib.effects import ideal
     from rdnet.sim.settings import DegradeConfig
     rng = np.random.default_rng(11)
@@ -90,8 +90,7 @@ def test_events_do_not_depend_on_the_row_grouping(monkeypatch, effects):
     degrade = dataclasses.replace(ideal(DegradeConfig()), **effects)     # every other effect off
     runs = {}
     for pixels in (1, 3 * 37, 10_000):
-        monkeypatch.setattr(sensor_mod, "GROUP_PIXELS", pixels)
-        s = Sensor(37, 13, SensorConfig(), degrade, np.random.default_rng(5))
+        s = Sensor(37, 13, SensorConfig(), degrade, np.random.default_rng(5), group_pixels=pixels)
         runs[s._group] = concatenate([s.step(frames[:30], t[:30]), s.step(frames[30:], t[30:]), s.flush()])
     assert sorted(runs) == [1, 3, 13]
     assert len(runs[1]) > 500
@@ -109,6 +108,7 @@ def test_row_group_makes_about_a_page_of_pixels():
     assert row_group(1280, 720) == 1 and row_group(1024, 10) == 1
     assert row_group(5, 7) == 7              # the whole frame
     assert row_group(1, 1) == 1
+    assert row_group(173, 130, group_pixels=1) == 1 and row_group(37, 13, group_pixels=111) == 3
 
 
 def test_bad_input_raises_and_keeps_state():
