@@ -497,11 +497,12 @@ def _grid(h: int, w: int) -> np.ndarray:
     return np.stack([gx, gy], axis=-1)
 
 
-def _warp_map(grid: np.ndarray, flow: np.ndarray) -> np.ndarray:
+def _warp_map(grid: np.ndarray, flow: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """The sampling map ``x + flow(x)`` of :func:`_remap`, (H, W, 2) float32, one
-    contiguous add (the same float32 sums as adding each coordinate on its own); a frame and
-    its occlusion mask warped by the same flow share it."""
-    return grid + flow
+    contiguous add (the same float32 sums as adding each coordinate on its own), into
+    ``out`` when given (it may be ``flow``); a frame and its occlusion mask warped by the
+    same flow share it."""
+    return np.add(flow, grid, out=out)
 
 
 def _remap(img: np.ndarray, warp_map: np.ndarray, interpolation: int = cv2.INTER_LINEAR,
@@ -738,12 +739,11 @@ class PairInterpolator:
         f01, f10, o0, o1, grid = self._prepare()
         # Super SloMo Eq. 4: ft0 = -(1 - t) t F01 + t^2 F10, ft1 = (1 - t)^2 F01 - t (1 - t) F10
         tmp = np.empty_like(f01)
-        m0 = np.multiply(f01, -(1 - t) * t)
-        m0 += np.multiply(f10, t * t, out=tmp)
-        m0 += grid                                                    # _warp_map(grid, ft0)
-        m1 = np.multiply(f01, (1 - t) * (1 - t))
-        m1 -= np.multiply(f10, t * (1 - t), out=tmp)
-        m1 += grid
+        ft0 = np.multiply(f01, -(1 - t) * t)
+        ft0 += np.multiply(f10, t * t, out=tmp)
+        ft1 = np.multiply(f01, (1 - t) * (1 - t))
+        ft1 -= np.multiply(f10, t * (1 - t), out=tmp)
+        m0, m1 = _warp_map(grid, ft0, out=ft0), _warp_map(grid, ft1, out=ft1)
         warp, clamp = WARPS[self.cfg.warp]
         b0, b1 = self._clamp_bounds() if clamp else (None, None)
         g0 = _remap(f0, m0, warp, clamp, b0)
