@@ -76,7 +76,7 @@ def describe(n: np.ndarray, on: np.ndarray, mask: np.ndarray, duration_s: float)
     lg = np.log1p(v)
     return {"events": int(v.sum()), "rate_hz_per_px": float(v.mean() / duration_s),
             "on_share": float(on[mask].sum() / max(v.sum(), 1)),
-            "quantiles": [float(np.quantile(v, q)) for q in QUANTILES],
+            "quantiles": np.quantile(v, QUANTILES).tolist(),
             "std_log": float(lg.std()), "fano": float(v.var() / max(v.mean(), 1e-9))}
 
 
