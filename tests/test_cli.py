@@ -222,6 +222,40 @@ def test_the_console_script_turns_numpys_huge_page_advice_off(user_value, numpy_
     assert off == str(not want_advice) and env_value == str(want_env) and advice == str(want_advice)
 
 
+@pytest.mark.parametrize("user_value,numpy_first,want_env,want_single", [
+    (None, False, "1", True),        # the console script's default: one BLAS thread
+    ("2", False, "2", False),        # the user's setting stands
+    ("1", False, "1", True),
+    (None, True, None, False),       # numpy already imported: nothing changes
+])
+def test_the_console_script_asks_openblas_for_one_thread(user_value, numpy_first, want_env, want_single):
+    """``entry`` calls :func:`rdnet.cli.single_thread_blas` before anything imports numpy: it
+    sets ``OPENBLAS_NUM_THREADS=1`` unless the user set the variable, and numpy's OpenBLAS
+    then starts no thread of its own (Linux: the process has one task after importing
+    numpy); with numpy already imported it changes nothing. Each case in a fresh
+    interpreter."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import sys, os\n" + ("import numpy\n" if numpy_first else "")
+            + "import rdnet.cli as cli\n"
+            + "assert ('numpy' in sys.modules) == " + str(numpy_first) + ", 'rdnet.cli imported numpy'\n"
+            + "single = cli.single_thread_blas()\n"
+            + "import numpy\n"
+            + "tasks = len(os.listdir('/proc/self/task')) if os.path.isdir('/proc/self/task') else -1\n"
+            + "print(single, os.environ.get('OPENBLAS_NUM_THREADS'), tasks)\n")
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if user_value is not None:
+        env["OPENBLAS_NUM_THREADS"] = user_value
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert r.returncode == 0, r.stderr
+    single, env_value, tasks = r.stdout.split()
+    assert single == str(want_single) and env_value == str(want_env)
+    if want_single and tasks != "-1":
+        assert tasks == "1"            # no OpenBLAS thread beside the main one
+
+
 def test_the_console_script_exits_with_mains_code_and_leaves_the_garbage_to_the_os(monkeypatch):
     """``rdnet`` (``rdnet.cli:entry``) exits with :func:`main`'s code after freezing the
     garbage collector, so the interpreter's shutdown does not collect what the process is

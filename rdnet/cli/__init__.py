@@ -110,9 +110,33 @@ def small_pages() -> bool:
     return True
 
 
+#: OpenBLAS's thread count for the console script: 1 unless the user's environment says
+#: otherwise (:func:`single_thread_blas`)
+OPENBLAS_ENV = "OPENBLAS_NUM_THREADS"
+
+
+def single_thread_blas() -> bool:
+    """Ask numpy's and scipy's OpenBLAS libraries for one thread, unless
+    ``OPENBLAS_NUM_THREADS`` is already set (the user's choice stands) or numpy is already
+    imported (OpenBLAS reads the variable when it loads); True when BLAS runs single-threaded
+    for this process. Why: each OpenBLAS library starts a thread per further core when it
+    loads, and that thread spins for about 0.1 s before it sleeps. rdnet's numpy work has no
+    large matrix products (the largest are a colour-to-grey dot product and small (S, K)
+    aggregations), so the threads never pay for themselves; ``rdnet calibrate`` loads both
+    libraries (scipy's through numba's first compilation, mid-run, while the calibration
+    keeps both cores busy) and spent 0.2 s of CPU in their spinning (``perf``, session 55;
+    docs/benchmarks.md, "OpenBLAS threads"). Torch uses its own oneMKL, which this leaves
+    alone."""
+    if OPENBLAS_ENV in os.environ or "numpy" in sys.modules:
+        return os.environ.get(OPENBLAS_ENV) == "1"
+    os.environ[OPENBLAS_ENV] = "1"
+    return True
+
+
 def entry() -> None:
     """The ``rdnet`` console script (and ``python -m rdnet.cli``): :func:`main`, then exit.
-    Numpy's huge-page advice is turned off first (:func:`small_pages`). Before the
+    Numpy's huge-page advice is turned off first (:func:`small_pages`), and OpenBLAS asked
+    for one thread (:func:`single_thread_blas`). Before the
     interpreter shuts down, every live object is moved out of the garbage collector's reach
     (``gc.freeze``): the shutdown otherwise spends its time collecting the objects of a
     process that is about to end (0.3-0.5 s after ``rdnet calibrate``, about a tenth of its
@@ -120,6 +144,7 @@ def entry() -> None:
     renamed by then, and atexit handlers still run. In-process callers (tests, notebooks)
     call :func:`main`, which leaves both alone."""
     small_pages()
+    single_thread_blas()
     rc = main()
     gc.freeze()
     sys.exit(rc)
