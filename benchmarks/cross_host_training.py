@@ -1,0 +1,201 @@
+"""Which settings make a training give the same bits on two CPU families (a probe, run on each
+host and compared).
+
+The data stages of the study reproduce across the project's two host types: on session 55's
+Intel Xeon (AVX-512 FP16) host `dvc repro -s blur` wrote the `data/pairs` files whose md5
+`dvc.lock` records from the AMD EPYC (Zen 4) host. The trainings do not: the same
+`data/pairs/train.h5`, seed and settings gave stage-1 weights up to 2.3e-3 apart from the AMD
+run's (the packaged restorer `rdnet/restore/models/restore_image.pt`, which is the AMD run's
+seed 0). The difference comes from oneMKL: with `train.threads: 1` and batches under 16, torch
+computes every 1x1 convolution as one MKL SGEMM per sample (`MKL_VERBOSE=1`: about 1,750 SGEMM
+calls a step), and oneMKL picks its kernels by CPU. On the Intel host, changing MKL's code path
+(`MKL_ENABLE_INSTRUCTIONS`, `MKL_CBWR`) changed the weights, while capping oneDNN's ISA
+(`ONEDNN_MAX_CPU_ISA=AVX512_CORE_BF16`, Zen 4's level) or ATen's vector width
+(`ATEN_CPU_CAPABILITY=avx2`) changed nothing. oneMKL's conditional numerical reproducibility
+(`MKL_CBWR`: one code path on every CPU that supports it; `,STRICT` also for every thread
+count) is made for this, but whether its results on an AMD CPU equal those on an Intel one is
+what this probe measures: nothing on one host can tell.
+
+For each setting below, one subprocess trains the image-guided stage 1 (`--task restore`,
+seed 0, one thread, `--iterations` steps) on the pairs file, and hashes (sha256) the trained
+weights in key order; a second hashes the packaged restorer's heads on a fixed seeded input
+(inference alone). Results go to `benchmarks/results/cross_host_training.json`, one entry per
+CPU (model name and the flags that pick kernels); `--compare` prints, per setting, whether
+every host recorded the same hashes. A setting whose training hashes agree across both host
+types is the one to set for the study's trainings (then one full rerun, and `dvc.lock` holds
+on both). At `--iterations 800` the plain setting's weights are also compared with the
+packaged restorer's (the AMD run's seed 0).
+
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/cross_host_training.py --iterations 800
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/cross_host_training.py --compare
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine import machine  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results" / "cross_host_training.json"
+PACKAGED = ROOT / "rdnet" / "restore" / "models" / "restore_image.pt"
+
+#: name -> environment: the default, oneMKL's reproducible code paths, and oneDNN / ATen caps
+SETTINGS = {
+    "plain": {},
+    "mkl_cbwr_avx2": {"MKL_CBWR": "AVX2"},
+    "mkl_cbwr_avx2_strict": {"MKL_CBWR": "AVX2,STRICT"},
+    "mkl_cbwr_compatible": {"MKL_CBWR": "COMPATIBLE"},
+    "mkl_cbwr_avx512": {"MKL_CBWR": "AVX512"},
+    "onednn_avx512_core_bf16": {"ONEDNN_MAX_CPU_ISA": "AVX512_CORE_BF16"},
+}
+#: environment variables that change kernels; cleared before each setting's own are applied
+KERNEL_ENV = ("MKL_CBWR", "MKL_ENABLE_INSTRUCTIONS", "ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY",
+              "MKL_NUM_THREADS", "OMP_NUM_THREADS")
+#: CPU flags that decide which kernels the libraries pick
+FLAGS = ("avx2", "avx512f", "avx512_bf16", "avx512_fp16", "avx512_vnni", "amx_tile", "amx_bf16")
+
+
+def cpu_flags() -> list[str]:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("flags"):
+                have = set(line.split(":", 1)[1].split())
+                return [f for f in FLAGS if f in have]
+    except OSError:
+        pass
+    return []
+
+
+def cpu_vendor() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("vendor_id"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return "unknown"
+
+
+def weights_hash(path: Path) -> str:
+    """sha256 of a checkpoint's state dict, tensor by tensor in key order (names, shapes,
+    dtypes and bytes): the file's own bytes also hold the config and the fitted decision."""
+    import torch
+    sd = torch.load(path, map_location="cpu", weights_only=False)["state_dict"]
+    h = hashlib.sha256()
+    for k in sorted(sd):
+        t = sd[k].detach().cpu().contiguous()
+        h.update(f"{k}:{tuple(t.shape)}:{t.dtype}".encode())
+        h.update(t.numpy().tobytes())
+    return h.hexdigest()
+
+
+def max_weight_diff(a: Path, b: Path) -> float:
+    import torch
+    sa = torch.load(a, map_location="cpu", weights_only=False)["state_dict"]
+    sb = torch.load(b, map_location="cpu", weights_only=False)["state_dict"]
+    return max(float((sa[k].float() - sb[k].float()).abs().max()) for k in sa)
+
+
+_INFER = r"""
+import hashlib, sys, numpy as np, torch
+from rdnet.train.checkpoint import load_model
+torch.set_num_threads(1)
+net = load_model(sys.argv[1]).eval()
+g = np.random.default_rng(7)
+ev = torch.from_numpy(g.poisson(0.3, (4, 20, 64, 64)).astype(np.float32))
+img = torch.from_numpy(g.random((4, 1, 64, 64), dtype=np.float32))
+with torch.no_grad():
+    out = net.heads(img, ev)
+h = hashlib.sha256()
+for t in (out if isinstance(out, (tuple, list)) else [out]):
+    h.update(t.contiguous().numpy().tobytes())
+print(h.hexdigest())
+"""
+
+
+def _env(setting: dict) -> dict:
+    env = {k: v for k, v in os.environ.items() if k not in KERNEL_ENV}
+    env.update(setting)
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def run_setting(name: str, setting: dict, pairs: Path, iterations: int, tmp: Path) -> dict:
+    out = tmp / name
+    cmd = [sys.executable, "-m", "rdnet.train.run", "--task", "restore", "--params", str(ROOT / "params.yaml"),
+           "--train", str(pairs), "--out", str(out), "--no-progress", "--no-resume",
+           "--set", "train.seed=0", "--set", "train.threads=1", "--set", f"train.iterations={iterations}",
+           "--set", "train.dvclive=false"]
+    t0 = time.perf_counter()
+    done = subprocess.run(cmd, env=_env(setting), cwd=ROOT, capture_output=True, text=True)
+    if done.returncode:
+        sys.exit(f"{name}: training failed:\n{done.stderr[-3000:]}")
+    wall = time.perf_counter() - t0
+    infer = subprocess.run([sys.executable, "-c", _INFER, str(PACKAGED)], env=_env(setting), check=True, cwd=ROOT,
+                           capture_output=True, text=True).stdout.strip()
+    rec = {"env": setting, "train_weights_sha256": weights_hash(out / "model.pt"), "train_wall_s": round(wall, 2),
+           "inference_sha256": infer}
+    if iterations == 800:
+        rec["max_abs_diff_to_packaged_amd_seed0"] = max_weight_diff(out / "model.pt", PACKAGED)
+    return rec
+
+
+def host_key() -> str:
+    m = machine()
+    return f"{cpu_vendor()} | {m['cpu']} | {','.join(cpu_flags())}"
+
+
+def compare(results: dict) -> None:
+    hosts = list(results.get("hosts", {}))
+    print(f"{len(hosts)} host(s): " + "; ".join(hosts))
+    for it in sorted({k for h in hosts for k in results["hosts"][h] if not k.startswith("_")}):
+        print(f"\n{it}:")
+        for name in SETTINGS:
+            recs = [results["hosts"][h].get(it, {}).get(name) for h in hosts]
+            recs = [r for r in recs if r]
+            if not recs:
+                continue
+            tr = {r["train_weights_sha256"] for r in recs}
+            inf = {r["inference_sha256"] for r in recs}
+            print(f"  {name:26s} hosts {len(recs)}  training {'same' if len(tr) == 1 else 'DIFFERENT'}  "
+                  f"inference {'same' if len(inf) == 1 else 'DIFFERENT'}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--pairs", type=Path, default=ROOT / "data" / "pairs" / "train.h5")
+    ap.add_argument("--iterations", type=int, default=100)
+    ap.add_argument("--settings", nargs="*", default=list(SETTINGS), choices=list(SETTINGS))
+    ap.add_argument("--compare", action="store_true", help="only print the comparison of the recorded hosts")
+    args = ap.parse_args()
+    results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {"hosts": {}}
+    if args.compare:
+        compare(results)
+        return
+    if not args.pairs.exists():
+        sys.exit(f"{args.pairs}: no such file (run `dvc repro blur` first)")
+    key = host_key()
+    entry = results["hosts"].setdefault(key, {})
+    import torch
+    entry["_versions"] = {"torch": torch.__version__, "machine": machine(),
+                          "pairs_md5": hashlib.md5(args.pairs.read_bytes()).hexdigest()}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in args.settings:
+            rec = run_setting(name, SETTINGS[name], args.pairs, args.iterations, Path(tmp))
+            entry.setdefault(f"iterations_{args.iterations}", {})[name] = rec
+            print(name, json.dumps(rec))
+    RESULTS.write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
+    compare(results)
+
+
+if __name__ == "__main__":
+    main()
