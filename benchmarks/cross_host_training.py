@@ -42,7 +42,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import machine  # noqa: E402
+from machine import cpu_info, machine  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "cross_host_training.json"
@@ -65,24 +65,8 @@ FLAGS = ("avx2", "avx512f", "avx512_bf16", "avx512_fp16", "avx512_vnni", "amx_ti
 
 
 def cpu_flags() -> list[str]:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("flags"):
-                have = set(line.split(":", 1)[1].split())
-                return [f for f in FLAGS if f in have]
-    except OSError:
-        pass
-    return []
-
-
-def cpu_vendor() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("vendor_id"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return "unknown"
+    have = set((cpu_info("flags") or "").split())
+    return [f for f in FLAGS if f in have]
 
 
 def weights_hash(path: Path) -> str:
@@ -151,7 +135,7 @@ def run_setting(name: str, setting: dict, pairs: Path, iterations: int, tmp: Pat
 
 def host_key() -> str:
     m = machine()
-    return f"{cpu_vendor()} | {m['cpu']} | {','.join(cpu_flags())}"
+    return f"{cpu_info('vendor_id') or 'unknown'} | {m['cpu']} | {','.join(cpu_flags())}"
 
 
 def compare(results: dict) -> None:

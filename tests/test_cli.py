@@ -192,6 +192,29 @@ def test_every_long_command_takes_no_progress():
         assert opts["--no-progress"].default is True, name
 
 
+def _before_numpy(setter: str, variable: str, user_value: str | None, numpy_first: bool, probe: str) -> list[str]:
+    """Run ``rdnet.cli.<setter>()`` in a fresh interpreter whose environment has ``variable``
+    set to ``user_value`` (or unset), after importing numpy when ``numpy_first``, then import
+    numpy; returns the printed words: the setter's result, the variable's value and
+    ``probe`` (a Python expression)."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import sys, os\n" + ("import numpy\n" if numpy_first else "")
+            + "import rdnet.cli as cli\n"
+            + "assert ('numpy' in sys.modules) == " + str(numpy_first) + ", 'rdnet.cli imported numpy'\n"
+            + f"result = cli.{setter}()\n"
+            + "import numpy\n"
+            + f"print(result, os.environ.get({variable!r}), {probe})\n")
+    env = {k: v for k, v in os.environ.items() if k != variable}
+    if user_value is not None:
+        env[variable] = user_value
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert r.returncode == 0, r.stderr
+    return r.stdout.split()
+
+
 @pytest.mark.parametrize("user_value,numpy_first,want_env,want_advice", [
     (None, False, "0", False),       # the console script's default: numpy advises no huge pages
     ("1", False, "1", True),         # the user's setting stands
@@ -203,22 +226,8 @@ def test_the_console_script_turns_numpys_huge_page_advice_off(user_value, numpy_
     ``NUMPY_MADVISE_HUGEPAGE=0`` unless the user set the variable, and numpy then advises no
     transparent huge pages; with numpy already imported it changes nothing (numpy reads the
     variable once). Each case in a fresh interpreter."""
-    import os
-    import subprocess
-    import sys
-
-    code = ("import sys\n" + ("import numpy\n" if numpy_first else "")
-            + "import rdnet.cli as cli\n"
-            + "assert ('numpy' in sys.modules) == " + str(numpy_first) + ", 'rdnet.cli imported numpy'\n"
-            + "off = cli.small_pages()\n"
-            + "import os, numpy\n"
-            + "print(off, os.environ.get('NUMPY_MADVISE_HUGEPAGE'), numpy._core.multiarray._get_madvise_hugepage())\n")
-    env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
-    if user_value is not None:
-        env["NUMPY_MADVISE_HUGEPAGE"] = user_value
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
-    assert r.returncode == 0, r.stderr
-    off, env_value, advice = r.stdout.split()
+    off, env_value, advice = _before_numpy("small_pages", "NUMPY_MADVISE_HUGEPAGE", user_value, numpy_first,
+                                           "numpy._core.multiarray._get_madvise_hugepage()")
     assert off == str(not want_advice) and env_value == str(want_env) and advice == str(want_advice)
 
 
@@ -234,23 +243,9 @@ def test_the_console_script_asks_openblas_for_one_thread(user_value, numpy_first
     then starts no thread of its own (Linux: the process has one task after importing
     numpy); with numpy already imported it changes nothing. Each case in a fresh
     interpreter."""
-    import os
-    import subprocess
-    import sys
-
-    code = ("import sys, os\n" + ("import numpy\n" if numpy_first else "")
-            + "import rdnet.cli as cli\n"
-            + "assert ('numpy' in sys.modules) == " + str(numpy_first) + ", 'rdnet.cli imported numpy'\n"
-            + "single = cli.single_thread_blas()\n"
-            + "import numpy\n"
-            + "tasks = len(os.listdir('/proc/self/task')) if os.path.isdir('/proc/self/task') else -1\n"
-            + "print(single, os.environ.get('OPENBLAS_NUM_THREADS'), tasks)\n")
-    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
-    if user_value is not None:
-        env["OPENBLAS_NUM_THREADS"] = user_value
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
-    assert r.returncode == 0, r.stderr
-    single, env_value, tasks = r.stdout.split()
+    single, env_value, tasks = _before_numpy(
+        "single_thread_blas", "OPENBLAS_NUM_THREADS", user_value, numpy_first,
+        "len(os.listdir('/proc/self/task')) if os.path.isdir('/proc/self/task') else -1")
     assert single == str(want_single) and env_value == str(want_env)
     if want_single and tasks != "-1":
         assert tasks == "1"            # no OpenBLAS thread beside the main one
