@@ -11,7 +11,8 @@ computes every 1x1 convolution as one MKL SGEMM per sample (`MKL_VERBOSE=1`: abo
 calls a step), and oneMKL picks its kernels by CPU. On the Intel host, changing MKL's code path
 (`MKL_ENABLE_INSTRUCTIONS`, `MKL_CBWR`) changed the weights, while capping oneDNN's ISA
 (`ONEDNN_MAX_CPU_ISA=AVX512_CORE_BF16`, Zen 4's level) or ATen's vector width
-(`ATEN_CPU_CAPABILITY=avx2`) changed nothing. oneMKL's conditional numerical reproducibility
+(`ATEN_CPU_CAPABILITY=avx2`) changed nothing; with two torch threads every convolution goes
+to oneDNN (no SGEMM), and oneDNN's ISA caps down to `AVX512_CORE` give the same bits. oneMKL's conditional numerical reproducibility
 (`MKL_CBWR`: one code path on every CPU that supports it; `,STRICT` also for every thread
 count) is made for this, but whether its results on an AMD CPU equal those on an Intel one is
 what this probe measures: nothing on one host can tell.
@@ -48,7 +49,9 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "cross_host_training.json"
 PACKAGED = ROOT / "rdnet" / "restore" / "models" / "restore_image.pt"
 
-#: name -> environment: the default, oneMKL's reproducible code paths, and oneDNN / ATen caps
+#: name -> environment (``TORCH_THREADS``: the training's and the inference's torch threads,
+#: 1 unless given): the default, oneMKL's reproducible code paths, oneDNN's ISA cap, and two
+#: torch threads, with which torch sends the 1x1 convolutions to oneDNN instead of oneMKL
 SETTINGS = {
     "plain": {},
     "mkl_cbwr_avx2": {"MKL_CBWR": "AVX2"},
@@ -56,6 +59,10 @@ SETTINGS = {
     "mkl_cbwr_compatible": {"MKL_CBWR": "COMPATIBLE"},
     "mkl_cbwr_avx512": {"MKL_CBWR": "AVX512"},
     "onednn_avx512_core_bf16": {"ONEDNN_MAX_CPU_ISA": "AVX512_CORE_BF16"},
+    "two_torch_threads": {"TORCH_THREADS": "2"},
+    "two_torch_threads_onednn_avx512_core_bf16": {"TORCH_THREADS": "2", "ONEDNN_MAX_CPU_ISA": "AVX512_CORE_BF16"},
+    "two_torch_threads_onednn_avx512_core": {"TORCH_THREADS": "2", "ONEDNN_MAX_CPU_ISA": "AVX512_CORE"},
+    "two_torch_threads_onednn_avx2": {"TORCH_THREADS": "2", "ONEDNN_MAX_CPU_ISA": "AVX2"},
 }
 #: environment variables that change kernels; cleared before each setting's own are applied
 KERNEL_ENV = ("MKL_CBWR", "MKL_ENABLE_INSTRUCTIONS", "ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY",
@@ -92,7 +99,7 @@ def max_weight_diff(a: Path, b: Path) -> float:
 _INFER = r"""
 import hashlib, sys, numpy as np, torch
 from rdnet.train.checkpoint import load_model
-torch.set_num_threads(1)
+torch.set_num_threads(int(sys.argv[2]))
 net = load_model(sys.argv[1]).eval()
 g = np.random.default_rng(7)
 ev = torch.from_numpy(g.poisson(0.3, (4, 20, 64, 64)).astype(np.float32))
@@ -115,16 +122,17 @@ def _env(setting: dict) -> dict:
 
 def run_setting(name: str, setting: dict, pairs: Path, iterations: int, tmp: Path) -> dict:
     out = tmp / name
+    threads = int(setting.get("TORCH_THREADS", 1))
     cmd = [sys.executable, "-m", "rdnet.train.run", "--task", "restore", "--params", str(ROOT / "params.yaml"),
            "--train", str(pairs), "--out", str(out), "--no-progress", "--no-resume",
-           "--set", "train.seed=0", "--set", "train.threads=1", "--set", f"train.iterations={iterations}",
+           "--set", "train.seed=0", "--set", f"train.threads={threads}", "--set", f"train.iterations={iterations}",
            "--set", "train.dvclive=false"]
     t0 = time.perf_counter()
     done = subprocess.run(cmd, env=_env(setting), cwd=ROOT, capture_output=True, text=True)
     if done.returncode:
         sys.exit(f"{name}: training failed:\n{done.stderr[-3000:]}")
     wall = time.perf_counter() - t0
-    infer = subprocess.run([sys.executable, "-c", _INFER, str(PACKAGED)], env=_env(setting), check=True, cwd=ROOT,
+    infer = subprocess.run([sys.executable, "-c", _INFER, str(PACKAGED), str(threads)], env=_env(setting), check=True, cwd=ROOT,
                            capture_output=True, text=True).stdout.strip()
     rec = {"env": setting, "train_weights_sha256": weights_hash(out / "model.pt"), "train_wall_s": round(wall, 2),
            "inference_sha256": infer}
@@ -139,19 +147,27 @@ def host_key() -> str:
 
 
 def compare(results: dict) -> None:
+    """Per step count and setting, each host's training and inference hashes (8 hex digits)
+    and whether every host agrees (needs two hosts)."""
     hosts = list(results.get("hosts", {}))
-    print(f"{len(hosts)} host(s): " + "; ".join(hosts))
+    print(f"{len(hosts)} host(s):\n" + "\n".join(f"  [{i}] {h}" for i, h in enumerate(hosts)))
     for it in sorted({k for h in hosts for k in results["hosts"][h] if not k.startswith("_")}):
-        print(f"\n{it}:")
+        print(f"\n{it}: setting, then training / inference hash per host")
         for name in SETTINGS:
-            recs = [results["hosts"][h].get(it, {}).get(name) for h in hosts]
-            recs = [r for r in recs if r]
+            recs = {i: results["hosts"][h].get(it, {}).get(name) for i, h in enumerate(hosts)}
+            recs = {i: r for i, r in recs.items() if r}
             if not recs:
                 continue
-            tr = {r["train_weights_sha256"] for r in recs}
-            inf = {r["inference_sha256"] for r in recs}
-            print(f"  {name:26s} hosts {len(recs)}  training {'same' if len(tr) == 1 else 'DIFFERENT'}  "
-                  f"inference {'same' if len(inf) == 1 else 'DIFFERENT'}")
+            cells = "  ".join(f"[{i}] {r['train_weights_sha256'][:8]} / {r['inference_sha256'][:8]}"
+                              for i, r in recs.items())
+            if len(recs) < 2:
+                verdict = "one host"
+            else:
+                same_t = len({r["train_weights_sha256"] for r in recs.values()}) == 1
+                same_i = len({r["inference_sha256"] for r in recs.values()}) == 1
+                verdict = ("SAME on every host" if same_t and same_i else
+                           f"training {'same' if same_t else 'differs'}, inference {'same' if same_i else 'differs'}")
+            print(f"  {name:42s} {cells}  {verdict}")
 
 
 def main() -> None:
