@@ -20,7 +20,8 @@ what this probe measures: nothing on one host can tell.
 For each setting below, one subprocess trains the image-guided stage 1 (`--task restore`,
 seed 0, one thread, `--iterations` steps) on the pairs file, and hashes (sha256) the trained
 weights in key order; a second hashes the packaged restorer's heads on a fixed seeded input
-(inference alone). Results go to `benchmarks/results/cross_host_training.json`, one entry per
+(inference alone), and records the code path oneMKL reports for the setting (`MKL_VERBOSE`'s
+version line: the ISA it dispatches to, and `CNR:`). Results go to `benchmarks/results/cross_host_training.json`, one entry per
 CPU (model name and the flags that pick kernels); `--compare` prints, per setting, whether
 every host recorded the same hashes. A setting whose training hashes agree across both host
 types is the one to set for the study's trainings (then one full rerun, and `dvc.lock` holds
@@ -113,6 +114,25 @@ print(h.hexdigest())
 """
 
 
+_MKL_PATH = r"""
+import torch
+torch.set_num_threads(1)
+torch.nn.Conv2d(8, 16, 1)(torch.ones(2, 8, 4, 4))
+"""
+
+
+def mkl_code_path(setting: dict) -> str | None:
+    """oneMKL's own account of the code path it takes under ``setting`` (the version line
+    ``MKL_VERBOSE=1`` prints at its first call: the ISA it dispatches to) and whether its
+    conditional numerical reproducibility is on (``CNR:``), from one 1x1 convolution."""
+    env = {**_env(setting), "MKL_VERBOSE": "1"}
+    out = subprocess.run([sys.executable, "-c", _MKL_PATH], env=env, cwd=ROOT, capture_output=True,
+                         text=True).stdout.splitlines()
+    head = next((line for line in out if line.startswith("MKL_VERBOSE oneMKL")), None)
+    cnr = next((w for line in out for w in line.split() if w.startswith("CNR:")), None)
+    return None if head is None else f"{head[len('MKL_VERBOSE '):]} | {cnr}"
+
+
 def _env(setting: dict) -> dict:
     env = {k: v for k, v in os.environ.items() if k not in KERNEL_ENV}
     env.update(setting)
@@ -135,7 +155,7 @@ def run_setting(name: str, setting: dict, pairs: Path, iterations: int, tmp: Pat
     infer = subprocess.run([sys.executable, "-c", _INFER, str(PACKAGED), str(threads)], env=_env(setting), check=True, cwd=ROOT,
                            capture_output=True, text=True).stdout.strip()
     rec = {"env": setting, "train_weights_sha256": weights_hash(out / "model.pt"), "train_wall_s": round(wall, 2),
-           "inference_sha256": infer}
+           "inference_sha256": infer, "mkl_code_path": mkl_code_path(setting)}
     if iterations == 800:
         rec["max_abs_diff_to_packaged_amd_seed0"] = max_weight_diff(out / "model.pt", PACKAGED)
     return rec
