@@ -70,16 +70,18 @@ def _pct(v: float) -> str:
 def held_out_rows(restoration: Mapping, source: str | Path | None = None) -> list[tuple[str, str, str]]:
     """The three test-split goals: (goal, measured, status). ``source``: the file
     ``restoration`` came from (named by :class:`MissingMetric`)."""
-    ev = {k: _get(restoration, k, "events", source=source) for k, _ in RESTORERS + BASELINES if k in restoration}
     for k, _ in RESTORERS + (BASELINES[0],):
-        if k not in ev:
-            raise MissingMetric(source, f"{k}.events")
-    base = [(name, float(ev[k]["f1"])) for k, name in BASELINES if k in ev]
+        _get(restoration, k, "events", source=source)
+
+    def val(key: str, metric: str) -> float:
+        return float(_get(restoration, key, "events", metric, source=source))
+
+    base = [(name, val(k, "f1")) for k, name in BASELINES if k in restoration]
     best_name, best_f1 = max(base, key=lambda b: b[1])
-    f1 = [(name, float(ev[k]["f1"])) for k, name in RESTORERS]
-    raw_l1 = float(ev["degraded"]["voxel_l1_all"])
-    l1 = [(name, float(ev[k]["voxel_l1_all"])) for k, name in RESTORERS]
-    ratio = [(name, float(ev[k]["count_ratio"])) for k, name in RESTORERS]
+    f1 = [(name, val(k, "f1")) for k, name in RESTORERS]
+    raw_l1 = val("degraded", "voxel_l1_all")
+    l1 = [(name, val(k, "voxel_l1_all")) for k, name in RESTORERS]
+    ratio = [(name, val(k, "count_ratio")) for k, name in RESTORERS]
     lo, hi = COUNT_RATIO
     return [
         (f"test F1 above every baseline ({', '.join(f'{n} {v:.3f}' for n, v in base)})",
@@ -98,12 +100,16 @@ def real_rows(real: Mapping, source: str | Path | None = None) -> list[tuple[str
     """The DAVIS346 and DVXplorer goals: (goal, measured, status); a recording missing from
     ``real`` (``../shared`` absent when ``restore_real`` ran) gives no rows."""
     recs = _get(real, "recordings", source=source)
+
+    def val(*path):
+        return _get(real, "recordings", *path, source=source)
+
     rows = []
     if "davis346_road" in recs:
-        d = recs["davis346_road"]
-        raw, rd = _get(d, "methods", "raw", source=source), _get(d, "methods", "rdnet", source=source)
-        c_raw, c_rd = float(raw["consistency_r2"]), float(rd["consistency_r2"])
-        n_raw, n_rd = int(_get(d, "events", source=source)), int(rd["events_out"])
+        c_raw = float(val("davis346_road", "methods", "raw", "consistency_r2"))
+        c_rd = float(val("davis346_road", "methods", "rdnet", "consistency_r2"))
+        n_raw = int(val("davis346_road", "events"))
+        n_rd = int(val("davis346_road", "methods", "rdnet", "events_out"))
         lo, hi = DAVIS_COUNT
         rows += [
             (f"DAVIS346: event-frame consistency of the restored stream at least raw's ({c_raw:.3f})",
@@ -112,18 +118,21 @@ def real_rows(real: Mapping, source: str | Path | None = None) -> list[tuple[str
              f"{n_rd:,} ({n_rd / n_raw:.2f}x)", _status(lo * n_raw <= n_rd <= hi * n_raw)),
         ]
     if "dvxplorer_person" in recs:
-        m = _get(recs["dvxplorer_person"], "methods", source=source)
-        rd, baf = _get(m, "rdnet", "regions", source=source), _get(m, "baf", "regions", source=source)
-        act, bg, hot = float(rd["activity"]), float(rd["background"]), float(rd["hot_pixels"])
+        act, bg, hot = (float(val("dvxplorer_person", "methods", "rdnet", "regions", k))
+                        for k in ("activity", "background", "hot_pixels"))
+        b_act, b_bg, b_hot = (float(val("dvxplorer_person", "methods", "baf", "regions", k))
+                              for k in ("activity", "background", "hot_pixels"))
         rows += [
-            (f"DVXplorer: activity kept >= {100 * ACTIVITY_MIN:.0f} %", f"events-only {_pct(act)}", _status(act >= ACTIVITY_MIN)),
+            (f"DVXplorer: activity kept >= {100 * ACTIVITY_MIN:.0f} %", f"events-only {_pct(act)}",
+             _status(act >= ACTIVITY_MIN)),
             (f"DVXplorer: background kept <= {100 * BACKGROUND_MAX:.0f} %", f"events-only {_pct(bg)}",
              _status(bg <= BACKGROUND_MAX)),
-            (f"DVXplorer: hot pixels' events kept <= {100 * HOT_MAX:.0f} %", f"events-only {_pct(hot)}", _status(hot <= HOT_MAX)),
+            (f"DVXplorer: hot pixels' events kept <= {100 * HOT_MAX:.0f} %", f"events-only {_pct(hot)}",
+             _status(hot <= HOT_MAX)),
             ("DVXplorer: better than BAF on background and hot pixels, at the fitted decision",
-             f"background {_pct(bg)} against BAF's {_pct(float(baf['background']))}, hot pixels {_pct(hot)} "
-             f"against {_pct(float(baf['hot_pixels']))} (activity {_pct(act)} against {_pct(float(baf['activity']))})",
-             _status(bg < float(baf["background"]) and hot <= float(baf["hot_pixels"]))),
+             f"background {_pct(bg)} against BAF's {_pct(b_bg)}, hot pixels {_pct(hot)} against {_pct(b_hot)} "
+             f"(activity {_pct(act)} against {_pct(b_act)})",
+             _status(bg < b_bg and hot <= b_hot)),
         ]
     return rows
 

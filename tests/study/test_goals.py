@@ -99,6 +99,14 @@ def test_a_missing_metric_names_the_file_and_the_field():
     assert "metrics/restoration.json" in str(e.value) and "restore_events.events" in str(e.value)
 
 
+def test_a_missing_score_of_a_recording_names_its_whole_path():
+    r = real()
+    del r["recordings"]["dvxplorer_person"]["methods"]["baf"]["regions"]["background"]
+    with pytest.raises(MissingMetric, match="summary.json: field 'recordings.dvxplorer_person.methods.baf.regions"
+                                            ".background'"):
+        goals_table(restoration(), r, sources=("restoration.json", "summary.json"))
+
+
 def test_the_stage_exits_2_with_one_line_and_writes_nothing_on_a_bad_file(tmp_path):
     bad = tmp_path / "restoration.json"
     bad.write_text(json.dumps({"rdnet": {}}))
