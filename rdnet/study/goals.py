@@ -1,11 +1,13 @@
 """Issue 11's goals for event restoration, measured: a markdown table generated from the
-study's metrics (``metrics/restoration.json``, stage ``restoration``) and the real
+study's metrics (``metrics/restoration.json``, stage ``restoration``; the circuit generator's
+``metrics/restoration_circuit.json``, stage ``restoration_circuit``) and the real
 recordings' scores (``results/restore_real/summary.json``, stage ``restore_real``), so that
 README's goals table is what the committed run measured, not typed.
 
 Each goal is the issue's own definition and threshold:
 
-- on the simulated test split (degradation disjoint from training), for each trained stage 1
+- on the simulated test split (degradation disjoint from training; also on the same windows
+  with the events rendered by the independent circuit generator), for each trained stage 1
   (RDNet's fine-tuned one, the image-guided one trained alone, the events-only one): event F1
   above every baseline's (raw, BAF, STCF, GEF, the EDnCNN-style classifier), the voxel L1 over
   all voxels at least 30 % below raw's, the restored/undegraded count ratio within 0.85-1.15
@@ -67,16 +69,35 @@ def _pct(v: float) -> str:
     return f"{100.0 * v:.1f} %"
 
 
-def held_out_rows(restoration: Mapping, source: str | Path | None = None) -> list[tuple[str, str, str]]:
+def _study_path(key: str, *metric: str) -> tuple:
+    """Where ``metrics/restoration.json`` keeps a method's event metric."""
+    return (key, "events", *metric)
+
+
+def _circuit_path(key: str, *metric: str) -> tuple:
+    """Where ``metrics/restoration_circuit.json`` keeps it."""
+    return ("events", key, *metric)
+
+
+def held_out_rows(restoration: Mapping, source: str | Path | None = None, *, where=_study_path,
+                  label: str = "test") -> list[tuple[str, str, str]]:
     """The three test-split goals: (goal, measured, status). ``source``: the file
-    ``restoration`` came from (named by :class:`MissingMetric`)."""
+    ``restoration`` came from (named by :class:`MissingMetric`); ``where``: the path of a
+    method's metric in it; ``label``: how the goals name the events."""
     for k, _ in RESTORERS + (BASELINES[0],):
-        _get(restoration, k, "events", source=source)
+        _get(restoration, *where(k), source=source)
 
     def val(key: str, metric: str) -> float:
-        return float(_get(restoration, key, "events", metric, source=source))
+        return float(_get(restoration, *where(key, metric), source=source))
 
-    base = [(name, val(k, "f1")) for k, name in BASELINES if k in restoration]
+    def has(key: str) -> bool:
+        try:
+            _get(restoration, *where(key))
+        except MissingMetric:
+            return False
+        return True
+
+    base = [(name, val(k, "f1")) for k, name in BASELINES if has(k)]
     best_name, best_f1 = max(base, key=lambda b: b[1])
     f1 = [(name, val(k, "f1")) for k, name in RESTORERS]
     raw_l1 = val("degraded", "voxel_l1_all")
@@ -84,13 +105,13 @@ def held_out_rows(restoration: Mapping, source: str | Path | None = None) -> lis
     ratio = [(name, val(k, "count_ratio")) for k, name in RESTORERS]
     lo, hi = COUNT_RATIO
     return [
-        (f"test F1 above every baseline ({', '.join(f'{n} {v:.3f}' for n, v in base)})",
+        (f"{label} F1 above every baseline ({', '.join(f'{n} {v:.3f}' for n, v in base)})",
          ", ".join(f"{n} {v:.3f}" for n, v in f1),
          _status(all(v > best_f1 for _, v in f1)) + f" (best baseline: {best_name})"),
-        (f"test all-voxel L1 at least {100 * L1_CUT:.0f} % below raw ({raw_l1:.4f}, so <= {(1 - L1_CUT) * raw_l1:.4f})",
+        (f"{label} all-voxel L1 at least {100 * L1_CUT:.0f} % below raw ({raw_l1:.4f}, so <= {(1 - L1_CUT) * raw_l1:.4f})",
          ", ".join(f"{n} {v:.4f} ({100 * (v / raw_l1 - 1):+.1f} %)" for n, v in l1),
          _status(all(v <= (1 - L1_CUT) * raw_l1 for _, v in l1))),
-        (f"test count ratio within {lo}-{hi}",
+        (f"{label} count ratio within {lo}-{hi}",
          ", ".join(f"{n} {v:.2f}" for n, v in ratio),
          _status(all(lo <= v <= hi for _, v in ratio))),
     ]
@@ -151,13 +172,26 @@ def esr_row(real: Mapping, source: str | Path | None = None) -> str:
     return "ESR (raw / learned restorer / best baseline): " + "; ".join(parts) + "."
 
 
-def goals_table(restoration: Mapping, real: Mapping, sources: tuple = (None, None)) -> str:
-    """The markdown table (with a line of ESR scores under it). ``sources``: the files the
-    two mappings came from, named when a metric is missing."""
-    rows = held_out_rows(restoration, sources[0]) + real_rows(real, sources[1])
+def circuit_rows(circuit: Mapping, source: str | Path | None = None) -> list[tuple[str, str, str]]:
+    """The three test-split goals on the same test windows with the events rendered by the
+    independent circuit generator (``metrics/restoration_circuit.json``, stage
+    ``restoration_circuit``): ground truth that rdnet's simulator did not make."""
+    return held_out_rows(circuit, source, where=_circuit_path, label="circuit generator's test events:")
+
+
+def goals_table(restoration: Mapping, real: Mapping, circuit: Mapping | None = None,
+                sources: tuple = (None, None, None)) -> str:
+    """The markdown table (with a line of ESR scores under it). ``circuit``: the same
+    metrics on the circuit generator's events (three more rows). ``sources``: the files
+    the mappings came from, named when a metric is missing."""
+    rows = held_out_rows(restoration, sources[0])
+    if circuit is not None:
+        rows += circuit_rows(circuit, sources[2] if len(sources) > 2 else None)
+    rows += real_rows(real, sources[1])
     lines = ["| goal | measured | status |", "|---|---|---|"]
     lines += [f"| {g} | {m} | {s} |" for g, m, s in rows]
     return "\n".join(lines) + "\n\n" + esr_row(real, sources[1]) + "\n"
 
 
-__all__ = ["GOALS_END", "GOALS_START", "MissingMetric", "esr_row", "goals_table", "real_rows", "held_out_rows"]
+__all__ = ["GOALS_END", "GOALS_START", "MissingMetric", "circuit_rows", "esr_row", "goals_table", "held_out_rows",
+           "real_rows"]

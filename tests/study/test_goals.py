@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from rdnet.errors import FormatError
-from rdnet.study.goals import MissingMetric, goals_table, held_out_rows, real_rows
+from rdnet.study.goals import MissingMetric, circuit_rows, goals_table, held_out_rows, real_rows
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -75,6 +75,21 @@ def test_one_restorer_missing_a_test_goal_fails_it(kwargs, start):
 ])
 def test_a_real_recording_goal_missed_reads_not_met(kwargs, start):
     assert _status(real_rows(real(**kwargs)), start) == "**not met**"
+
+
+def test_the_circuit_generators_metrics_give_the_same_three_goals():
+    """metrics/restoration_circuit.json keeps each method's event metrics under events/<method>."""
+    study = restoration(alone=(0.58, 0.36, 0.9))
+    circuit = {"events": {k: dict(v["events"]) for k, v in study.items()}}
+    rows = circuit_rows(circuit)
+    assert [m for _, m, _ in rows] == [m for _, m, _ in held_out_rows(study)]
+    assert all(g.startswith("circuit generator's test events:") for g, _, _ in rows)
+    assert _status(rows, "circuit generator's test events: all-voxel") == "**not met**"
+    text = goals_table(study, real(), circuit)
+    assert text.count("\n| ") == 12
+    del circuit["events"]["restore_events"]["count_ratio"]
+    with pytest.raises(MissingMetric, match="c.json: field 'events.restore_events.count_ratio'"):
+        goals_table(study, real(), circuit, sources=("r.json", "s.json", "c.json"))
 
 
 def test_a_recording_that_restore_real_skipped_gives_no_rows():
