@@ -167,6 +167,20 @@ def read_yaml(path: str | Path) -> dict:
     return data
 
 
+def read_json(path: str | Path):
+    """The JSON document in ``path``; :class:`~rdnet.errors.FormatError` naming the file when
+    it cannot be read or parsed (a metrics file or report another stage wrote)."""
+    import json
+
+    from rdnet.errors import FormatError
+    try:
+        return json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise FormatError(path, None, "no such file (run the stage that writes it first)") from None
+    except (OSError, ValueError) as e:
+        raise FormatError(path, None, f"not readable JSON: {e}") from None
+
+
 def _yaml_problem(e: "yaml.YAMLError") -> str:
     """One line for a YAML error: the problem and where (PyYAML's own message spans lines)."""
     mark = getattr(e, "problem_mark", None)

@@ -3,33 +3,20 @@ restoration against what the study measured (metrics/restoration.json of stage `
 metrics/restoration_circuit.json of stage `restoration_circuit`, results/restore_real/summary.json
 of stage `restore_real`; rdnet.study.goals).
 `python stages/restoration_goals.py --sync-readme` copies the table into README.md."""
-import json
 from pathlib import Path
 
 import _common
 
 
-def _load(path: Path) -> dict:
-    from rdnet.errors import FormatError
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        raise FormatError(path, None, "no such file (run its stage first)") from None
-    except json.JSONDecodeError as e:
-        raise FormatError(path, None, f"not JSON ({e})") from None
-
-
 def main(args, params):
-    from rdnet.study.goals import GOALS_END, GOALS_START, goals_table
+    from rdnet.study.goals import GOALS_END, GOALS_START, goals_from_files
     from rdnet.study.report import sync_readme
     if args.sync_readme:
         changed = sync_readme(Path("README.md"), args.out.read_text(), GOALS_START, GOALS_END)
         print("README.md updated" if changed else "README.md already up to date")
         return
     from rdnet.eval.report import write_text_atomic
-    table = goals_table(_load(args.restoration), _load(args.real), _load(args.circuit),
-                        sources=(args.restoration, args.real, args.circuit))
-    write_text_atomic(args.out, table)
+    write_text_atomic(args.out, goals_from_files(args.restoration, args.real, args.circuit))
 
 
 p = _common.parser(__doc__)

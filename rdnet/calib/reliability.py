@@ -19,11 +19,11 @@ Used by the ``calibration_proof`` stage (metrics and ``reliability.md``) and by
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
+from rdnet.config import read_json
 from rdnet.errors import FormatError, ValidationError
 
 
@@ -78,17 +78,10 @@ def block_rows(folder: str | Path, proof: dict, block: str) -> list[dict]:
         if not rp.is_file():
             raise FormatError(rp, None, f"report of case {case['case']} (block {block}) is missing")
         try:
-            rows += candidate_rows(_read_json(rp), case["true_effect"], block=block, case=case["case"])
+            rows += candidate_rows(read_json(rp), case["true_effect"], block=block, case=case["case"])
         except (KeyError, TypeError, ValueError) as e:
             raise FormatError(rp, "effects", f"not a calibration report's effects list ({type(e).__name__}: {e})") from None
     return rows
-
-
-def _read_json(path: Path):
-    try:
-        return json.loads(Path(path).read_text())
-    except (OSError, ValueError) as e:
-        raise FormatError(path, None, f"not readable JSON: {e}") from None
 
 
 def proof_blocks(folder: str | Path) -> dict[str, Path]:
@@ -109,7 +102,7 @@ def load_rows(folder: str | Path) -> list[dict]:
     """Candidate rows of every case of every block of a proof folder on disk."""
     rows = []
     for block, d in proof_blocks(folder).items():
-        rows += block_rows(d, _read_json(d / "proof.json"), block)
+        rows += block_rows(d, read_json(d / "proof.json"), block)
     return rows
 
 

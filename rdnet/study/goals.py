@@ -119,7 +119,7 @@ def held_out_rows(restoration: Mapping, source: str | Path | None = None, *, whe
 
 def real_rows(real: Mapping, source: str | Path | None = None) -> list[tuple[str, str, str]]:
     """The DAVIS346 and DVXplorer goals: (goal, measured, status); a recording missing from
-    ``real`` (``../shared`` absent when ``restore_real`` ran) gives no rows."""
+    ``real`` (one ``restore_real`` could not read on that machine) gives no rows."""
     recs = _get(real, "recordings", source=source)
 
     def val(*path):
@@ -193,5 +193,13 @@ def goals_table(restoration: Mapping, real: Mapping, circuit: Mapping | None = N
     return "\n".join(lines) + "\n\n" + esr_row(real, sources[1]) + "\n"
 
 
-__all__ = ["GOALS_END", "GOALS_START", "MissingMetric", "circuit_rows", "esr_row", "goals_table", "held_out_rows",
-           "real_rows"]
+def goals_from_files(restoration: str | Path, real: str | Path, circuit: str | Path | None = None) -> str:
+    """:func:`goals_table` of the metrics files (a missing or unreadable file, or a missing
+    metric, is a :class:`~rdnet.errors.FormatError` naming the file)."""
+    from rdnet.config import read_json
+    return goals_table(read_json(restoration), read_json(real), None if circuit is None else read_json(circuit),
+                       sources=(restoration, real, circuit))
+
+
+__all__ = ["GOALS_END", "GOALS_START", "MissingMetric", "circuit_rows", "esr_row", "goals_from_files", "goals_table",
+           "held_out_rows", "real_rows"]

@@ -122,6 +122,18 @@ def test_a_missing_score_of_a_recording_names_its_whole_path():
         goals_table(restoration(), r, sources=("restoration.json", "summary.json"))
 
 
+def test_a_missing_metrics_file_is_named(tmp_path):
+    from rdnet.study.goals import goals_from_files
+    good = tmp_path / "summary.json"
+    good.write_text(json.dumps(real()))
+    with pytest.raises(FormatError, match="restoration.json: no such file"):
+        goals_from_files(tmp_path / "restoration.json", good)
+    bad = tmp_path / "restoration.json"
+    bad.write_text("{not json")
+    with pytest.raises(FormatError, match="restoration.json: not readable JSON"):
+        goals_from_files(bad, good)
+
+
 def test_the_stage_exits_2_with_one_line_and_writes_nothing_on_a_bad_file(tmp_path):
     bad = tmp_path / "restoration.json"
     bad.write_text(json.dumps({"rdnet": {}}))
