@@ -87,6 +87,16 @@ def main(argv: list[str] | None = None) -> int:
     return int(rc or 0)
 
 
+def _before_numpy(name: str, value: str) -> bool:
+    """Set the environment variable ``name`` to ``value`` for the libraries numpy loads, unless
+    the user set it (their choice stands) or numpy is already imported (the variable is read
+    at that import); True when ``name`` is ``value`` for this process."""
+    if name in os.environ or "numpy" in sys.modules:
+        return os.environ.get(name) == value
+    os.environ[name] = value
+    return True
+
+
 #: numpy's transparent-huge-page advice for the console script: off unless the user's
 #: environment says otherwise (:func:`small_pages`)
 HUGEPAGE_ENV = "NUMPY_MADVISE_HUGEPAGE"
@@ -104,10 +114,7 @@ def small_pages() -> bool:
     the first time with the advice and 28-39 ms without it on the project's 2-core host,
     and ``rdnet calibrate`` spent 2.0-2.6 s of system time against 1.2-1.4 s
     (docs/benchmarks.md, "Huge pages")."""
-    if HUGEPAGE_ENV in os.environ or "numpy" in sys.modules:
-        return os.environ.get(HUGEPAGE_ENV) == "0"
-    os.environ[HUGEPAGE_ENV] = "0"
-    return True
+    return _before_numpy(HUGEPAGE_ENV, "0")
 
 
 #: OpenBLAS's thread count for the console script: 1 unless the user's environment says
@@ -127,10 +134,7 @@ def single_thread_blas() -> bool:
     keeps both cores busy) and spent 0.2 s of CPU in their spinning (``perf``, session 55;
     docs/benchmarks.md, "OpenBLAS threads"). Torch uses its own oneMKL, which this leaves
     alone."""
-    if OPENBLAS_ENV in os.environ or "numpy" in sys.modules:
-        return os.environ.get(OPENBLAS_ENV) == "1"
-    os.environ[OPENBLAS_ENV] = "1"
-    return True
+    return _before_numpy(OPENBLAS_ENV, "1")
 
 
 def entry() -> None:
