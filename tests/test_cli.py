@@ -192,7 +192,7 @@ def test_every_long_command_takes_no_progress():
         assert opts["--no-progress"].default is True, name
 
 
-def _before_numpy(setter: str, variable: str, user_value: str | None, numpy_first: bool, probe: str) -> list[str]:
+def _in_fresh_interpreter(setter: str, variable: str, user_value: str | None, numpy_first: bool, probe: str) -> list[str]:
     """Run ``rdnet.cli.<setter>()`` in a fresh interpreter whose environment has ``variable``
     set to ``user_value`` (or unset), after importing numpy when ``numpy_first``, then import
     numpy; returns the printed words: the setter's result, the variable's value and
@@ -226,7 +226,7 @@ def test_the_console_script_turns_numpys_huge_page_advice_off(user_value, numpy_
     ``NUMPY_MADVISE_HUGEPAGE=0`` unless the user set the variable, and numpy then advises no
     transparent huge pages; with numpy already imported it changes nothing (numpy reads the
     variable once). Each case in a fresh interpreter."""
-    off, env_value, advice = _before_numpy("small_pages", "NUMPY_MADVISE_HUGEPAGE", user_value, numpy_first,
+    off, env_value, advice = _in_fresh_interpreter("small_pages", "NUMPY_MADVISE_HUGEPAGE", user_value, numpy_first,
                                            "numpy._core.multiarray._get_madvise_hugepage()")
     assert off == str(not want_advice) and env_value == str(want_env) and advice == str(want_advice)
 
@@ -243,7 +243,7 @@ def test_the_console_script_asks_openblas_for_one_thread(user_value, numpy_first
     then starts no thread of its own (Linux: the process has one task after importing
     numpy); with numpy already imported it changes nothing. Each case in a fresh
     interpreter."""
-    single, env_value, tasks = _before_numpy(
+    single, env_value, tasks = _in_fresh_interpreter(
         "single_thread_blas", "OPENBLAS_NUM_THREADS", user_value, numpy_first,
         "len(os.listdir('/proc/self/task')) if os.path.isdir('/proc/self/task') else -1")
     assert single == str(want_single) and env_value == str(want_env)
