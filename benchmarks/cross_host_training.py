@@ -17,6 +17,11 @@ to oneDNN (no SGEMM), and oneDNN's ISA caps down to `AVX512_CORE` give the same 
 count) is made for this, but whether its results on an AMD CPU equal those on an Intel one is
 what this probe measures: nothing on one host can tell.
 
+Measured (sessions 55-57, both host types, `--compare`): no setting gives the same training
+bits on both; the inference hashes agree with `MKL_CBWR=COMPATIBLE` and with two torch
+threads (all oneDNN), so the backward passes part the bits even without oneMKL. Details in
+docs/history.md, "Why the trainings differ between the two host types".
+
 For each setting below, one subprocess trains the image-guided stage 1 (`--task restore`,
 seed 0, one thread, `--iterations` steps) on the pairs file, and hashes (sha256) the trained
 weights in key order; a second hashes the packaged restorer's heads on a fixed seeded input
