@@ -56,8 +56,10 @@ RESULTS = ROOT / "benchmarks" / "results" / "cross_host_training.json"
 PACKAGED = ROOT / "rdnet" / "restore" / "models" / "restore_image.pt"
 
 #: name -> environment (``TORCH_THREADS``: the training's and the inference's torch threads,
-#: 1 unless given): the default, oneMKL's reproducible code paths, oneDNN's ISA cap, and two
-#: torch threads, with which torch sends the 1x1 convolutions to oneDNN instead of oneMKL
+#: 1 unless given; ``TORCH_MKLDNN=0``: ``torch.backends.mkldnn.enabled = False`` in both, so
+#: every convolution, forward and backward, is ATen's own im2col + oneMKL GEMM): the default,
+#: oneMKL's reproducible code paths, oneDNN's ISA cap, and two torch threads, with which torch
+#: sends the 1x1 convolutions to oneDNN instead of oneMKL
 SETTINGS = {
     "plain": {},
     "mkl_cbwr_avx2": {"MKL_CBWR": "AVX2"},
@@ -69,6 +71,11 @@ SETTINGS = {
     "two_torch_threads_onednn_avx512_core_bf16": {"TORCH_THREADS": "2", "ONEDNN_MAX_CPU_ISA": "AVX512_CORE_BF16"},
     "two_torch_threads_onednn_avx512_core": {"TORCH_THREADS": "2", "ONEDNN_MAX_CPU_ISA": "AVX512_CORE"},
     "two_torch_threads_onednn_avx2": {"TORCH_THREADS": "2", "ONEDNN_MAX_CPU_ISA": "AVX2"},
+    # no oneDNN at all, and oneMKL on its one code path for every CPU (the only setting whose
+    # inference agreed across the host types with oneMKL in use): whether the backward passes
+    # then agree too is what this pair asks (session 57)
+    "no_onednn": {"TORCH_MKLDNN": "0"},
+    "no_onednn_mkl_cbwr_compatible": {"TORCH_MKLDNN": "0", "MKL_CBWR": "COMPATIBLE"},
 }
 #: environment variables that change kernels; cleared before each setting's own are applied
 KERNEL_ENV = ("MKL_CBWR", "MKL_ENABLE_INSTRUCTIONS", "ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY",
@@ -106,6 +113,7 @@ _INFER = r"""
 import hashlib, sys, numpy as np, torch
 from rdnet.train.checkpoint import load_model
 torch.set_num_threads(int(sys.argv[2]))
+torch.backends.mkldnn.enabled = sys.argv[3] != "0"
 net = load_model(sys.argv[1]).eval()
 g = np.random.default_rng(7)
 ev = torch.from_numpy(g.poisson(0.3, (4, 20, 64, 64)).astype(np.float32))
@@ -138,6 +146,15 @@ def mkl_code_path(setting: dict) -> str | None:
     return None if head is None else f"{head[len('MKL_VERBOSE '):]} | {cnr}"
 
 
+#: ``python -m rdnet.train.run ARGS`` with oneDNN switched off first (``TORCH_MKLDNN=0``)
+_RUN_WITHOUT_ONEDNN = r"""
+import runpy, sys, torch
+torch.backends.mkldnn.enabled = False
+sys.argv = ["rdnet.train.run"] + sys.argv[1:]
+runpy.run_module("rdnet.train.run", run_name="__main__", alter_sys=True)
+"""
+
+
 def _env(setting: dict) -> dict:
     env = {k: v for k, v in os.environ.items() if k not in KERNEL_ENV}
     env.update(setting)
@@ -148,7 +165,9 @@ def _env(setting: dict) -> dict:
 def run_setting(name: str, setting: dict, pairs: Path, iterations: int, tmp: Path) -> dict:
     out = tmp / name
     threads = int(setting.get("TORCH_THREADS", 1))
-    cmd = [sys.executable, "-m", "rdnet.train.run", "--task", "restore", "--params", str(ROOT / "params.yaml"),
+    mkldnn = setting.get("TORCH_MKLDNN", "1")
+    run = ["-m", "rdnet.train.run"] if mkldnn != "0" else ["-c", _RUN_WITHOUT_ONEDNN]
+    cmd = [sys.executable, *run, "--task", "restore", "--params", str(ROOT / "params.yaml"),
            "--train", str(pairs), "--out", str(out), "--no-progress", "--no-resume",
            "--set", "train.seed=0", "--set", f"train.threads={threads}", "--set", f"train.iterations={iterations}",
            "--set", "train.dvclive=false"]
@@ -157,7 +176,8 @@ def run_setting(name: str, setting: dict, pairs: Path, iterations: int, tmp: Pat
     if done.returncode:
         sys.exit(f"{name}: training failed:\n{done.stderr[-3000:]}")
     wall = time.perf_counter() - t0
-    infer = subprocess.run([sys.executable, "-c", _INFER, str(PACKAGED), str(threads)], env=_env(setting), check=True, cwd=ROOT,
+    infer = subprocess.run([sys.executable, "-c", _INFER, str(PACKAGED), str(threads), mkldnn], env=_env(setting),
+                           check=True, cwd=ROOT,
                            capture_output=True, text=True).stdout.strip()
     rec = {"env": setting, "train_weights_sha256": weights_hash(out / "model.pt"), "train_wall_s": round(wall, 2),
            "inference_sha256": infer, "mkl_code_path": mkl_code_path(setting)}
