@@ -7,10 +7,11 @@ BIN := $(VENV)/bin
 #   make repro TORCH_SPEC="torch==2.13.0 --index-url https://download.pytorch.org/whl/cu126"
 TORCH_SPEC ?= torch==2.13.0
 STAMP := $(VENV)/.rdnet-installed
-# The versions the committed dvc.lock was made with, for the packages whose versions change the
-# study's bytes (h5py 3.12-3.15 write other pairs-file bytes than 3.16 from the same arrays;
-# numpy, numba, OpenCV and scikit-image the arrays; matplotlib the figures). pyproject.toml keeps
-# ranges, so rdnet installs as a library beside other versions; `make ... STUDY_PINS=` drops these.
+# Pinned versions of the packages that can change the study's bytes, those with which the data
+# stages wrote the bytes dvc.lock records (checked in session 57; h5py 3.12-3.15 write other
+# pairs-file bytes than 3.16 from the same arrays; numpy, numba, OpenCV and scikit-image compute
+# the arrays, matplotlib draws the figures). pyproject.toml keeps ranges, so rdnet installs as a
+# library beside other versions; `make ... STUDY_PINS=` drops these.
 STUDY_PINS ?= numpy==2.4.6 scipy==1.17.1 numba==0.68.1 llvmlite==0.50.0 h5py==3.16.0 \
 	scikit-image==0.26.0 opencv-python-headless==5.0.0.93 matplotlib==3.11.2 pillow==13.0.0 \
 	aedat==2.3.0 dvc==3.67.1

@@ -1,5 +1,5 @@
-"""The Makefile's install pins (``STUDY_PINS``, ``TORCH_SPEC``: the versions ``dvc.lock`` was
-made with) stay inside ``pyproject.toml``'s ranges, so ``make install`` and a plain
+"""The Makefile's install pins (``STUDY_PINS``, ``TORCH_SPEC``: the versions the study's
+bytes in ``dvc.lock`` were checked with) stay inside ``pyproject.toml``'s ranges, so ``make install`` and a plain
 ``pip install rdnet`` agree on what rdnet supports."""
 import re
 from pathlib import Path
