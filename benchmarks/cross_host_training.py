@@ -109,11 +109,17 @@ def max_weight_diff(a: Path, b: Path) -> float:
     return max(float((sa[k].float() - sb[k].float()).abs().max()) for k in sa)
 
 
-_INFER = r"""
-import hashlib, sys, numpy as np, torch
+#: run first in the training's and the inference's subprocess: ``TORCH_MKLDNN=0`` in the
+#: setting's environment switches oneDNN off before any model is built
+_PRELUDE = r"""
+import os, torch
+torch.backends.mkldnn.enabled = os.environ.get("TORCH_MKLDNN", "1") != "0"
+"""
+
+_INFER = _PRELUDE + r"""
+import hashlib, sys, numpy as np
 from rdnet.train.checkpoint import load_model
 torch.set_num_threads(int(sys.argv[2]))
-torch.backends.mkldnn.enabled = sys.argv[3] != "0"
 net = load_model(sys.argv[1]).eval()
 g = np.random.default_rng(7)
 ev = torch.from_numpy(g.poisson(0.3, (4, 20, 64, 64)).astype(np.float32))
@@ -146,10 +152,9 @@ def mkl_code_path(setting: dict) -> str | None:
     return None if head is None else f"{head[len('MKL_VERBOSE '):]} | {cnr}"
 
 
-#: ``python -m rdnet.train.run ARGS`` with oneDNN switched off first (``TORCH_MKLDNN=0``)
-_RUN_WITHOUT_ONEDNN = r"""
-import runpy, sys, torch
-torch.backends.mkldnn.enabled = False
+#: ``python -m rdnet.train.run ARGS`` after the prelude
+_TRAIN = _PRELUDE + r"""
+import runpy, sys
 sys.argv = ["rdnet.train.run"] + sys.argv[1:]
 runpy.run_module("rdnet.train.run", run_name="__main__", alter_sys=True)
 """
@@ -165,9 +170,7 @@ def _env(setting: dict) -> dict:
 def run_setting(name: str, setting: dict, pairs: Path, iterations: int, tmp: Path) -> dict:
     out = tmp / name
     threads = int(setting.get("TORCH_THREADS", 1))
-    mkldnn = setting.get("TORCH_MKLDNN", "1")
-    run = ["-m", "rdnet.train.run"] if mkldnn != "0" else ["-c", _RUN_WITHOUT_ONEDNN]
-    cmd = [sys.executable, *run, "--task", "restore", "--params", str(ROOT / "params.yaml"),
+    cmd = [sys.executable, "-c", _TRAIN, "--task", "restore", "--params", str(ROOT / "params.yaml"),
            "--train", str(pairs), "--out", str(out), "--no-progress", "--no-resume",
            "--set", "train.seed=0", "--set", f"train.threads={threads}", "--set", f"train.iterations={iterations}",
            "--set", "train.dvclive=false"]
@@ -176,8 +179,7 @@ def run_setting(name: str, setting: dict, pairs: Path, iterations: int, tmp: Pat
     if done.returncode:
         sys.exit(f"{name}: training failed:\n{done.stderr[-3000:]}")
     wall = time.perf_counter() - t0
-    infer = subprocess.run([sys.executable, "-c", _INFER, str(PACKAGED), str(threads), mkldnn], env=_env(setting),
-                           check=True, cwd=ROOT,
+    infer = subprocess.run([sys.executable, "-c", _INFER, str(PACKAGED), str(threads)], env=_env(setting), check=True, cwd=ROOT,
                            capture_output=True, text=True).stdout.strip()
     rec = {"env": setting, "train_weights_sha256": weights_hash(out / "model.pt"), "train_wall_s": round(wall, 2),
            "inference_sha256": infer, "mkl_code_path": mkl_code_path(setting)}
