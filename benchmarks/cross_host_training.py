@@ -19,8 +19,11 @@ what this probe measures: nothing on one host can tell.
 
 Measured (sessions 55-57, both host types, `--compare`): no setting gives the same training
 bits on both; the inference hashes agree with `MKL_CBWR=COMPATIBLE` and with two torch
-threads (all oneDNN), so the backward passes part the bits even without oneMKL. Details in
-docs/history.md, "Why the trainings differ between the two host types".
+threads (all oneDNN), so the backward passes part the bits even without oneMKL. Left for the
+AMD host (recorded on the Intel one only): oneDNN off with `MKL_CBWR=COMPATIBLE`, alone and with
+ATen's kernels held to AVX2 or to the compiler's baseline (`ATEN_CPU_CAPABILITY`; `default`
+changes the training bits on the Intel host, `avx2` does not). Details in docs/history.md,
+"Why the trainings differ between the two host types".
 
 For each setting below, one subprocess trains the image-guided stage 1 (`--task restore`,
 seed 0, one thread, `--iterations` steps) on the pairs file, and hashes (sha256) the trained
@@ -76,6 +79,12 @@ SETTINGS = {
     # then agree too is what this pair asks (session 57)
     "no_onednn": {"TORCH_MKLDNN": "0"},
     "no_onednn_mkl_cbwr_compatible": {"TORCH_MKLDNN": "0", "MKL_CBWR": "COMPATIBLE"},
+    # the same with ATen's own kernels held to one vector width, in case the two CPUs take
+    # different ones (both report AVX-512): AVX2, or the compiler's baseline code (session 58)
+    "no_onednn_mkl_cbwr_compatible_aten_avx2": {"TORCH_MKLDNN": "0", "MKL_CBWR": "COMPATIBLE",
+                                                "ATEN_CPU_CAPABILITY": "avx2"},
+    "no_onednn_mkl_cbwr_compatible_aten_default": {"TORCH_MKLDNN": "0", "MKL_CBWR": "COMPATIBLE",
+                                                   "ATEN_CPU_CAPABILITY": "default"},
 }
 #: environment variables that change kernels; cleared before each setting's own are applied
 KERNEL_ENV = ("MKL_CBWR", "MKL_ENABLE_INSTRUCTIONS", "ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY",
