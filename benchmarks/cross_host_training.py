@@ -22,7 +22,8 @@ bits on both; the inference hashes agree with `MKL_CBWR=COMPATIBLE` and with two
 threads (all oneDNN), so the backward passes part the bits even without oneMKL. Left for the
 AMD host (recorded on the Intel one only): oneDNN off with `MKL_CBWR=COMPATIBLE`, alone and with
 ATen's kernels held to AVX2 or to the compiler's baseline (`ATEN_CPU_CAPABILITY`; `default`
-changes the training bits on the Intel host, `avx2` does not). Details in docs/history.md,
+changes the training bits on the Intel host, `avx2` does not, nor do oneMKL and ATen both held to
+AVX2, as a CPU without AVX-512 would run). Details in docs/history.md,
 "Why the trainings differ between the two host types".
 
 For each setting below, one subprocess trains the image-guided stage 1 (`--task restore`,
@@ -85,6 +86,11 @@ SETTINGS = {
                                                 "ATEN_CPU_CAPABILITY": "avx2"},
     "no_onednn_mkl_cbwr_compatible_aten_default": {"TORCH_MKLDNN": "0", "MKL_CBWR": "COMPATIBLE",
                                                    "ATEN_CPU_CAPABILITY": "default"},
+    # the same as a CPU without AVX-512 would run it (oneMKL and ATen both held to AVX2): a
+    # check on one host of whether the setting's bits follow the instruction set at all
+    "no_onednn_mkl_cbwr_compatible_as_avx2_cpu": {"TORCH_MKLDNN": "0", "MKL_CBWR": "COMPATIBLE",
+                                                  "MKL_ENABLE_INSTRUCTIONS": "AVX2",
+                                                  "ATEN_CPU_CAPABILITY": "avx2"},
 }
 #: environment variables that change kernels; cleared before each setting's own are applied
 KERNEL_ENV = ("MKL_CBWR", "MKL_ENABLE_INSTRUCTIONS", "ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY",
