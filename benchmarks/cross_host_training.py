@@ -59,6 +59,10 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "cross_host_training.json"
 PACKAGED = ROOT / "rdnet" / "restore" / "models" / "restore_image.pt"
 
+#: no oneDNN at all, and oneMKL on its one code path for every CPU: the setting the last
+#: entries below vary
+_PORTABLE = {"TORCH_MKLDNN": "0", "MKL_CBWR": "COMPATIBLE"}
+
 #: name -> environment (``TORCH_THREADS``: the training's and the inference's torch threads,
 #: 1 unless given; ``TORCH_MKLDNN=0``: ``torch.backends.mkldnn.enabled = False`` in both, so
 #: every convolution, forward and backward, is ATen's own im2col + oneMKL GEMM): the default,
@@ -79,17 +83,14 @@ SETTINGS = {
     # inference agreed across the host types with oneMKL in use): whether the backward passes
     # then agree too is what this pair asks (session 57)
     "no_onednn": {"TORCH_MKLDNN": "0"},
-    "no_onednn_mkl_cbwr_compatible": {"TORCH_MKLDNN": "0", "MKL_CBWR": "COMPATIBLE"},
+    "no_onednn_mkl_cbwr_compatible": _PORTABLE,
     # the same with ATen's own kernels held to one vector width, in case the two CPUs take
     # different ones (both report AVX-512): AVX2, or the compiler's baseline code (session 58)
-    "no_onednn_mkl_cbwr_compatible_aten_avx2": {"TORCH_MKLDNN": "0", "MKL_CBWR": "COMPATIBLE",
-                                                "ATEN_CPU_CAPABILITY": "avx2"},
-    "no_onednn_mkl_cbwr_compatible_aten_default": {"TORCH_MKLDNN": "0", "MKL_CBWR": "COMPATIBLE",
-                                                   "ATEN_CPU_CAPABILITY": "default"},
+    "no_onednn_mkl_cbwr_compatible_aten_avx2": {**_PORTABLE, "ATEN_CPU_CAPABILITY": "avx2"},
+    "no_onednn_mkl_cbwr_compatible_aten_default": {**_PORTABLE, "ATEN_CPU_CAPABILITY": "default"},
     # the same as a CPU without AVX-512 would run it (oneMKL and ATen both held to AVX2): a
     # check on one host of whether the setting's bits follow the instruction set at all
-    "no_onednn_mkl_cbwr_compatible_as_avx2_cpu": {"TORCH_MKLDNN": "0", "MKL_CBWR": "COMPATIBLE",
-                                                  "MKL_ENABLE_INSTRUCTIONS": "AVX2",
+    "no_onednn_mkl_cbwr_compatible_as_avx2_cpu": {**_PORTABLE, "MKL_ENABLE_INSTRUCTIONS": "AVX2",
                                                   "ATEN_CPU_CAPABILITY": "avx2"},
 }
 #: environment variables that change kernels; cleared before each setting's own are applied
