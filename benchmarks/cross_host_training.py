@@ -17,14 +17,17 @@ to oneDNN (no SGEMM), and oneDNN's ISA caps down to `AVX512_CORE` give the same 
 count) is made for this, but whether its results on an AMD CPU equal those on an Intel one is
 what this probe measures: nothing on one host can tell.
 
-Measured (sessions 55-57, both host types, `--compare`): no setting gives the same training
-bits on both; the inference hashes agree with `MKL_CBWR=COMPATIBLE` and with two torch
-threads (all oneDNN), so the backward passes part the bits even without oneMKL. Left for the
-AMD host (recorded on the Intel one only): oneDNN off with `MKL_CBWR=COMPATIBLE`, alone and with
-ATen's kernels held to AVX2 or to the compiler's baseline (`ATEN_CPU_CAPABILITY`; `default`
-changes the training bits on the Intel host, `avx2` does not, nor do oneMKL and ATen both held to
-AVX2, as a CPU without AVX-512 would run). Details in docs/history.md,
-"Why the trainings differ between the two host types".
+Measured (sessions 55-59, both host types, `--compare`): no setting gives the same training
+bits on both; the inference hashes agree with `MKL_CBWR=COMPATIBLE`, with two torch threads
+(all oneDNN), and with oneDNN off and `MKL_CBWR=COMPATIBLE` whatever vector width ATen and
+oneMKL are held to, so the backward passes or the optimizer part the bits even then. Details
+in docs/history.md, "Why the trainings differ between the two host types".
+
+`--trace` finds the op: it trains `--iterations` steps per setting under a dispatch mode that
+records every ATen op (name, sha256 of the inputs it reads, sha256 of its outputs) to
+`benchmarks/results/cross_host_traces/`; `--compare-traces` prints the first op whose inputs
+agree between two hosts and whose outputs do not. Traced on the AMD host (session 59) for
+`plain` and `no_onednn_mkl_cbwr_compatible_aten_avx2`.
 
 For each setting below, one subprocess trains the image-guided stage 1 (`--task restore`,
 seed 0, one thread, `--iterations` steps) on the pairs file, and hashes (sha256) the trained
@@ -39,6 +42,9 @@ packaged restorer's (the AMD run's seed 0).
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/cross_host_training.py --iterations 800
     PYTHONPATH=$PWD .venv/bin/python benchmarks/cross_host_training.py --compare
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/cross_host_training.py --trace --iterations 2 \
+        --settings plain no_onednn_mkl_cbwr_compatible_aten_avx2
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/cross_host_training.py --compare-traces
 """
 from __future__ import annotations
 
@@ -176,6 +182,63 @@ runpy.run_module("rdnet.train.run", run_name="__main__", alter_sys=True)
 """
 
 
+#: ``python -m rdnet.train.run ARGS`` under a dispatch mode that records every ATen op the run
+#: calls (forward, backward, optimizer, in order): its name and a sha256 of its inputs (before
+#: the call, so in-place ops count) and of its outputs; written as JSON to ``sys.argv[1]``
+_TRACE = _PRELUDE + r"""
+import hashlib, json, runpy, sys
+from torch.utils._python_dispatch import TorchDispatchMode
+from torch.utils._pytree import tree_flatten
+
+def digest(obj):
+    h = hashlib.sha256()
+    for t in tree_flatten(obj)[0]:
+        if isinstance(t, torch.Tensor):
+            t = t.detach().cpu().contiguous()
+            if t.dtype in (torch.bfloat16, torch.float16):
+                t = t.view(torch.int16)
+            h.update(f"{tuple(t.shape)}{t.dtype}".encode())
+            h.update(t.numpy().tobytes())
+        else:
+            h.update(repr(t).encode())
+    return h.hexdigest()[:12]
+
+rows = []
+class Trace(TorchDispatchMode):
+    # inputs: the arguments the op only reads (a written one's old content is an earlier
+    # op's output, or uninitialised memory); outputs: not for the empty family (uninitialised)
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        kwargs = kwargs or {}
+        if str(func).startswith("profiler."):     # record_function markers: object ids
+            return func(*args, **kwargs)
+        schema = func._schema.arguments
+        written = {a.name for a in schema if a.alias_info is not None and a.alias_info.is_write}
+        read_args = [x for a, x in zip(schema, args) if a.name not in written]
+        read_kwargs = {k: v for k, v in kwargs.items() if k not in written}
+        before = digest((read_args, read_kwargs))
+        out = func(*args, **kwargs)
+        name = str(func)
+        rows.append([name, before, "-" if name.startswith(("aten.empty", "aten.new_empty")) else digest(out)])
+        return out
+
+out_path = sys.argv[1]
+sys.argv = ["rdnet.train.run"] + sys.argv[2:]
+torch.manual_seed(0)    # the DataLoader's base seed (unused with no workers) comes from here
+try:
+    with Trace():
+        runpy.run_module("rdnet.train.run", run_name="__main__", alter_sys=True)
+except SystemExit as e:
+    if e.code:
+        raise
+finally:
+    with open(out_path, "w") as f:
+        json.dump(rows, f)
+"""
+
+#: where ``--trace`` writes each host's op traces (one gzipped JSON per host and setting)
+TRACES = ROOT / "benchmarks" / "results" / "cross_host_traces"
+
+
 def _env(setting: dict) -> dict:
     env = {k: v for k, v in os.environ.items() if k not in KERNEL_ENV}
     env.update(setting)
@@ -202,6 +265,77 @@ def run_setting(name: str, setting: dict, pairs: Path, iterations: int, tmp: Pat
     if iterations == 800:
         rec["max_abs_diff_to_packaged_amd_seed0"] = max_weight_diff(out / "model.pt", PACKAGED)
     return rec
+
+
+def _slug(text: str) -> str:
+    return "".join(c if c.isalnum() else "_" for c in text).strip("_")[:60]
+
+
+def trace_setting(name: str, setting: dict, pairs: Path, iterations: int, tmp: Path) -> Path:
+    """Train ``iterations`` steps under ``setting`` with every ATen op recorded (``_TRACE``)
+    and write the trace, gzipped, to ``TRACES/<host>__<setting>.json.gz``."""
+    import gzip
+    raw = tmp / f"{name}.trace.json"
+    threads = int(setting.get("TORCH_THREADS", 1))
+    cmd = [sys.executable, "-c", _TRACE, str(raw), "--task", "restore", "--params", str(ROOT / "params.yaml"),
+           "--train", str(pairs), "--out", str(tmp / name), "--no-progress", "--no-resume",
+           "--set", "train.seed=0", "--set", f"train.threads={threads}", "--set", f"train.iterations={iterations}",
+           "--set", "train.dvclive=false"]
+    done = subprocess.run(cmd, env=_env(setting), cwd=ROOT, capture_output=True, text=True)
+    if done.returncode:
+        sys.exit(f"{name}: traced training failed:\n{done.stderr[-3000:]}")
+    rows = json.loads(raw.read_text())
+    TRACES.mkdir(parents=True, exist_ok=True)
+    dest = TRACES / f"{_slug(host_key())}__{name}.json.gz"
+    tmp_dest = dest.with_suffix(".tmp")
+    with gzip.open(tmp_dest, "wt") as f:
+        json.dump({"host": host_key(), "setting": name, "env": setting, "iterations": iterations,
+                   "ops": rows}, f)
+    tmp_dest.replace(dest)
+    print(f"{name}: {len(rows)} ops traced -> {dest.relative_to(ROOT)}")
+    return dest
+
+
+def compare_traces() -> None:
+    """Per setting traced on two or more hosts: the first ATen op whose outputs differ
+    between the hosts while its inputs are the same (the op whose kernel parts the bits),
+    and the first op whose inputs differ (where the difference entered from outside)."""
+    import gzip
+    by_setting: dict[str, list[dict]] = {}
+    for f in sorted(TRACES.glob("*.json.gz")):
+        with gzip.open(f, "rt") as fh:
+            t = json.load(fh)
+        by_setting.setdefault(t["setting"], []).append(t)
+    for name, traces in by_setting.items():
+        print(f"\n{name}: {len(traces)} host(s)")
+        if len(traces) < 2:
+            continue
+        a, b = traces[0], traces[1]
+        ops_a, ops_b = a["ops"], b["ops"]
+        print(f"  [{a['host']}] {len(ops_a)} ops, [{b['host']}] {len(ops_b)} ops")
+        first_in = first_out = None
+        for i, (ra, rb) in enumerate(zip(ops_a, ops_b)):
+            if ra[0] != rb[0]:
+                print(f"  op sequences part at #{i}: {ra[0]} against {rb[0]}")
+                break
+            if first_in is None and ra[1] != rb[1]:
+                first_in = i
+            if ra[1] == rb[1] and ra[2] != rb[2]:
+                first_out = i
+                break
+        if first_out is None and first_in is None:
+            print("  every op the same on both hosts")
+            continue
+        if first_in is not None and (first_out is None or first_in < first_out):
+            print(f"  first op with different inputs: #{first_in} {ops_a[first_in][0]}")
+        if first_out is not None:
+            lo = max(0, first_out - 3)
+            print(f"  first op with the same inputs and different outputs: #{first_out} {ops_a[first_out][0]}")
+            for j in range(lo, min(len(ops_a), first_out + 4)):
+                print(f"    #{j} {ops_a[j][0]:50s} in {ops_a[j][1]} / {ops_b[j][1]}  out {ops_a[j][2]} / {ops_b[j][2]}")
+        n_diff_kernels = sum(1 for ra, rb in zip(ops_a, ops_b) if ra[1] == rb[1] and ra[2] != rb[2])
+        kinds = sorted({ra[0] for ra, rb in zip(ops_a, ops_b) if ra[1] == rb[1] and ra[2] != rb[2]})
+        print(f"  ops with the same inputs and different outputs: {n_diff_kernels}, of kinds {kinds}")
 
 
 def host_key() -> str:
@@ -239,13 +373,27 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=100)
     ap.add_argument("--settings", nargs="*", default=list(SETTINGS), choices=list(SETTINGS))
     ap.add_argument("--compare", action="store_true", help="only print the comparison of the recorded hosts")
+    ap.add_argument("--trace", action="store_true",
+                    help="record every ATen op of an --iterations-step training per setting (to "
+                         "benchmarks/results/cross_host_traces/) instead of hashing weights")
+    ap.add_argument("--compare-traces", action="store_true",
+                    help="only print, per traced setting, the first op whose outputs differ between hosts")
     args = ap.parse_args()
     results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {"hosts": {}}
     if args.compare:
         compare(results)
         return
+    if args.compare_traces:
+        compare_traces()
+        return
     if not args.pairs.exists():
         sys.exit(f"{args.pairs}: no such file (run `dvc repro blur` first)")
+    if args.trace:
+        with tempfile.TemporaryDirectory() as tmp:
+            for name in args.settings:
+                trace_setting(name, SETTINGS[name], args.pairs, args.iterations, Path(tmp))
+        compare_traces()
+        return
     key = host_key()
     entry = results["hosts"].setdefault(key, {})
     import torch
