@@ -22,9 +22,8 @@ in channel order by float rounding (below 1e-6 on unit-variance rows).
 
 The first call in a process costs about 0.3-0.5 s (numba sets up its compiler and loads the
 cached machine code; loading it on a background thread does not help, the work holds the
-GIL). ``rdnet restore`` with the learned restorer gains it back within the 2.36 s DAVIS346
-recording: end to end 4.99-5.27 s against 5.12-6.22 s with torch's layer norm (session 59,
-``benchmarks/results/restore_e2e_session59_amd.json``); on much shorter ones it is a net loss.
+GIL). ``rdnet restore`` with the learned restorer gains it back after about 2 s of a
+DAVIS346 recording (``benchmarks/bench_restore.py``); on shorter ones it is a net loss.
 """
 from __future__ import annotations
 
