@@ -288,9 +288,9 @@ def trace_setting(name: str, setting: dict, pairs: Path, iterations: int, tmp: P
     TRACES.mkdir(parents=True, exist_ok=True)
     dest = TRACES / f"{_slug(host_key())}__{name}.json.gz"
     tmp_dest = dest.with_suffix(".tmp")
-    with gzip.open(tmp_dest, "wt") as f:
-        json.dump({"host": host_key(), "setting": name, "env": setting, "iterations": iterations,
-                   "ops": rows}, f)
+    with gzip.GzipFile(tmp_dest, "wb", mtime=0) as f:     # mtime 0: the same trace, the same bytes
+        f.write(json.dumps({"host": host_key(), "setting": name, "env": setting, "iterations": iterations,
+                            "ops": rows}).encode())
     tmp_dest.replace(dest)
     print(f"{name}: {len(rows)} ops traced -> {dest.relative_to(ROOT)}")
     return dest
