@@ -98,10 +98,17 @@ SETTINGS = {
     # check on one host of whether the setting's bits follow the instruction set at all
     "no_onednn_mkl_cbwr_compatible_as_avx2_cpu": {**_PORTABLE, "MKL_ENABLE_INSTRUCTIONS": "AVX2",
                                                   "ATEN_CPU_CAPABILITY": "avx2"},
+    # the two libraries outside torch that pick code by CPU, held to one choice on top of the
+    # setting above (session 59): numpy without its AVX-512 targets (the Intel CPU also has
+    # numpy's AVX512_SPR, the AMD one does not), numba compiling for a generic x86-64
+    "no_onednn_mkl_cbwr_compatible_aten_avx2_numpy_avx2": {
+        **_PORTABLE, "ATEN_CPU_CAPABILITY": "avx2", "NPY_DISABLE_CPU_FEATURES": "AVX512_ICL X86_V4"},
+    "no_onednn_mkl_cbwr_compatible_aten_avx2_numba_generic": {
+        **_PORTABLE, "ATEN_CPU_CAPABILITY": "avx2", "NUMBA_CPU_NAME": "generic"},
 }
 #: environment variables that change kernels; cleared before each setting's own are applied
 KERNEL_ENV = ("MKL_CBWR", "MKL_ENABLE_INSTRUCTIONS", "ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY",
-              "MKL_NUM_THREADS", "OMP_NUM_THREADS")
+              "MKL_NUM_THREADS", "OMP_NUM_THREADS", "NPY_DISABLE_CPU_FEATURES", "NUMBA_CPU_NAME")
 #: CPU flags that decide which kernels the libraries pick
 FLAGS = ("avx2", "avx512f", "avx512_bf16", "avx512_fp16", "avx512_vnni", "amx_tile", "amx_bf16")
 
@@ -246,17 +253,29 @@ def _env(setting: dict) -> dict:
     return env
 
 
-def run_setting(name: str, setting: dict, pairs: Path, iterations: int, tmp: Path) -> dict:
-    out = tmp / name
-    threads = int(setting.get("TORCH_THREADS", 1))
-    cmd = [sys.executable, "-c", _TRAIN, "--task", "restore", "--params", str(ROOT / "params.yaml"),
+def _threads(setting: dict) -> int:
+    return int(setting.get("TORCH_THREADS", 1))
+
+
+def train_subprocess(name: str, setting: dict, pairs: Path, iterations: int, out: Path,
+                     script: str = _TRAIN, *script_args: str) -> None:
+    """Train the image-guided stage 1 (seed 0, ``iterations`` steps) into ``out`` under
+    ``setting`` in a child process running ``script`` (``_TRAIN``, or ``_TRACE`` with its
+    trace path first); exits with the child's stderr when it fails."""
+    cmd = [sys.executable, "-c", script, *script_args, "--task", "restore", "--params", str(ROOT / "params.yaml"),
            "--train", str(pairs), "--out", str(out), "--no-progress", "--no-resume",
-           "--set", "train.seed=0", "--set", f"train.threads={threads}", "--set", f"train.iterations={iterations}",
-           "--set", "train.dvclive=false"]
-    t0 = time.perf_counter()
+           "--set", "train.seed=0", "--set", f"train.threads={_threads(setting)}",
+           "--set", f"train.iterations={iterations}", "--set", "train.dvclive=false"]
     done = subprocess.run(cmd, env=_env(setting), cwd=ROOT, capture_output=True, text=True)
     if done.returncode:
         sys.exit(f"{name}: training failed:\n{done.stderr[-3000:]}")
+
+
+def run_setting(name: str, setting: dict, pairs: Path, iterations: int, tmp: Path) -> dict:
+    out = tmp / name
+    threads = _threads(setting)
+    t0 = time.perf_counter()
+    train_subprocess(name, setting, pairs, iterations, out)
     wall = time.perf_counter() - t0
     infer = subprocess.run([sys.executable, "-c", _INFER, str(PACKAGED), str(threads)], env=_env(setting), check=True, cwd=ROOT,
                            capture_output=True, text=True).stdout.strip()
@@ -267,8 +286,12 @@ def run_setting(name: str, setting: dict, pairs: Path, iterations: int, tmp: Pat
     return rec
 
 
-def _slug(text: str) -> str:
-    return "".join(c if c.isalnum() else "_" for c in text).strip("_")[:60]
+def _trace_file(setting: str) -> Path:
+    """``TRACES/<host>__<setting>.json.gz``: the host key shortened to a readable prefix plus
+    8 hex digits of its sha1, so two CPUs whose keys share the prefix get their own files."""
+    key = host_key()
+    readable = "".join(c if c.isalnum() else "_" for c in key).strip("_")[:40]
+    return TRACES / f"{readable}_{hashlib.sha1(key.encode()).hexdigest()[:8]}__{setting}.json.gz"
 
 
 def trace_setting(name: str, setting: dict, pairs: Path, iterations: int, tmp: Path) -> Path:
@@ -276,17 +299,10 @@ def trace_setting(name: str, setting: dict, pairs: Path, iterations: int, tmp: P
     and write the trace, gzipped, to ``TRACES/<host>__<setting>.json.gz``."""
     import gzip
     raw = tmp / f"{name}.trace.json"
-    threads = int(setting.get("TORCH_THREADS", 1))
-    cmd = [sys.executable, "-c", _TRACE, str(raw), "--task", "restore", "--params", str(ROOT / "params.yaml"),
-           "--train", str(pairs), "--out", str(tmp / name), "--no-progress", "--no-resume",
-           "--set", "train.seed=0", "--set", f"train.threads={threads}", "--set", f"train.iterations={iterations}",
-           "--set", "train.dvclive=false"]
-    done = subprocess.run(cmd, env=_env(setting), cwd=ROOT, capture_output=True, text=True)
-    if done.returncode:
-        sys.exit(f"{name}: traced training failed:\n{done.stderr[-3000:]}")
+    train_subprocess(name, setting, pairs, iterations, tmp / name, _TRACE, str(raw))
     rows = json.loads(raw.read_text())
     TRACES.mkdir(parents=True, exist_ok=True)
-    dest = TRACES / f"{_slug(host_key())}__{name}.json.gz"
+    dest = _trace_file(name)
     tmp_dest = dest.with_suffix(".tmp")
     with gzip.GzipFile(tmp_dest, "wb", mtime=0) as f:     # mtime 0: the same trace, the same bytes
         f.write(json.dumps({"host": host_key(), "setting": name, "env": setting, "iterations": iterations,
@@ -313,16 +329,15 @@ def compare_traces() -> None:
         a, b = traces[0], traces[1]
         ops_a, ops_b = a["ops"], b["ops"]
         print(f"  [{a['host']}] {len(ops_a)} ops, [{b['host']}] {len(ops_b)} ops")
-        first_in = first_out = None
-        for i, (ra, rb) in enumerate(zip(ops_a, ops_b)):
-            if ra[0] != rb[0]:
-                print(f"  op sequences part at #{i}: {ra[0]} against {rb[0]}")
-                break
-            if first_in is None and ra[1] != rb[1]:
-                first_in = i
-            if ra[1] == rb[1] and ra[2] != rb[2]:
-                first_out = i
-                break
+        same_ops = next((i for i, (ra, rb) in enumerate(zip(ops_a, ops_b)) if ra[0] != rb[0]),
+                        min(len(ops_a), len(ops_b)))
+        if same_ops < min(len(ops_a), len(ops_b)):
+            print(f"  op sequences part at #{same_ops}: {ops_a[same_ops][0]} against {ops_b[same_ops][0]}")
+        pairs = list(zip(ops_a[:same_ops], ops_b[:same_ops]))
+        # kernels that part the bits: the same inputs read, other outputs
+        parting = [i for i, (ra, rb) in enumerate(pairs) if ra[1] == rb[1] and ra[2] != rb[2]]
+        first_in = next((i for i, (ra, rb) in enumerate(pairs) if ra[1] != rb[1]), None)
+        first_out = parting[0] if parting else None
         if first_out is None and first_in is None:
             print("  every op the same on both hosts")
             continue
@@ -333,9 +348,8 @@ def compare_traces() -> None:
             print(f"  first op with the same inputs and different outputs: #{first_out} {ops_a[first_out][0]}")
             for j in range(lo, min(len(ops_a), first_out + 4)):
                 print(f"    #{j} {ops_a[j][0]:50s} in {ops_a[j][1]} / {ops_b[j][1]}  out {ops_a[j][2]} / {ops_b[j][2]}")
-        n_diff_kernels = sum(1 for ra, rb in zip(ops_a, ops_b) if ra[1] == rb[1] and ra[2] != rb[2])
-        kinds = sorted({ra[0] for ra, rb in zip(ops_a, ops_b) if ra[1] == rb[1] and ra[2] != rb[2]})
-        print(f"  ops with the same inputs and different outputs: {n_diff_kernels}, of kinds {kinds}")
+        print(f"  ops with the same inputs and different outputs: {len(parting)}, "
+              f"of kinds {sorted({ops_a[i][0] for i in parting})}")
 
 
 def host_key() -> str:
