@@ -31,9 +31,10 @@ def main(args, params):
     if net.task == "rdnet" and study.rdnet_stage2_init:
         network(params, study.rdnet_stage2_init)          # must name a network of the study
         init_deblur = args.models / study.rdnet_stage2_init
+    from rdnet.train.run import frame_pair_guide
     summary = train_seeds(net, study, train_cfg, section(params, "model"),
                           args.train, args.out, init=args.init, init_deblur=init_deblur, progress=True,
-                          timing=args.timing)
+                          timing=args.timing, guide=frame_pair_guide(net.task, params))
     cleanup()
     print(f"trained {args.out} for seeds {summary['seeds']} in {summary['wall_s_total']:.0f} s "
           f"({summary['parameters']:,} parameters)")
@@ -43,7 +44,7 @@ def _parser():
     p = _common.parser(__doc__)
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--network", help="an entry of the `networks` section of params.yaml")
-    g.add_argument("--task", help="a training task (restore, rdnet, deblur, ...)")
+    g.add_argument("--task", help="a training task (restore, restore_events, restore_frames, rdnet, deblur, ...)")
     p.add_argument("--events", choices=["degraded", "undegraded"], default=None,
                    help="with --task deblur or deblurnet_matched: the input events (default degraded)")
     p.add_argument("--restore-output", choices=["signed_masked", "counts"], default=None,

@@ -8,8 +8,10 @@ Methods (:data:`METHODS`, the names of the study rows):
 * ``image_only`` -- the image-only baseline (no events);
 * ``rdnet`` -- stage 1 then stage 2 on the ``events`` voxels (degraded in the paper);
   also scores the restored voxels;
-* ``restore`` -- a stage-1 checkpoint alone (image-guided or events-only): restoration
-  metrics only.
+* ``restore`` -- a stage-1 checkpoint alone (image-guided, frame-pair guided or
+  events-only): restoration metrics only. A frame-pair restorer (task ``restore_frames``,
+  :mod:`rdnet.nn.guide`) reads the guide its checkpoint stores, built from the pairs
+  file's ``frame_first``/``frame_last``.
 
 Stage 1 with the count output (``train.restore_output: counts``) reads the per-polarity
 counts of the pairs file (``voxel_<events>_on``/``_off``); ``restored`` is then the
@@ -83,6 +85,8 @@ def _load(kind, checkpoint, pairs_path, device, loaded) -> tuple:
     channels = info.channels
     if kind == "restore" and int(ck["model_args"].get("image_channels", 1)) == 0:
         channels = 0                                   # an events-only restorer (task restore_events)
+    elif kind == "restore" and checkpoint_guide(ck) is not None:
+        channels = info.channels + 1                   # a frame-pair restorer (task restore_frames)
     model = load_model(checkpoint, METHODS[kind], _device(device), bins=info.bins, image_channels=channels,
                        loaded=ck)
     return model, ck
@@ -108,6 +112,12 @@ def _pairs_rows(f, pairs_path: str | Path, info) -> Mapping:
     return _PAIRS_IN_MEMORY[key]
 
 
+def checkpoint_guide(ck: Mapping):
+    """The frame-pair guide a checkpoint's network reads (:mod:`rdnet.nn.guide`), or None."""
+    from rdnet.nn.guide import FramePairGuide
+    return FramePairGuide.from_dict(ck.get("extra", {}).get("guide"))
+
+
 def stage1_of(kind: str, model):
     """The RestoreNet of a loaded ``rdnet`` or ``restore`` model (None otherwise)."""
     if model is None:
@@ -130,13 +140,15 @@ def stage1_decision(checkpoint: str | Path, *, loaded: Mapping | None = None) ->
 def iter_predictions(kind: str, model, pairs_path: str | Path, events: str = "degraded", *,
                      voxel_transform: VoxelTransform | None = None, batch_size: int = 4,
                      device: str | torch.device = "cpu", indices: Sequence[int] | None = None,
-                     progress: bool = False, decision: dict | None = None) -> Iterator[dict]:
+                     progress: bool = False, decision: dict | None = None, guide=None) -> Iterator[dict]:
     """Batches of predictions: dicts of numpy arrays ``index``, ``level``, ``blurry``,
     ``sharp`` (target), ``voxel_undegraded``, ``voxel_degraded``, ``voxel`` (the input
     events after ``voxel_transform``), ``pred`` (predicted sharp image; absent for
     ``restore``) and ``restored`` (restored voxels; rdnet and restore); when the file has
     per-polarity voxels ``counts_undegraded``/``counts_degraded`` ((n, 2, bins, H, W),
-    ON then OFF) and, with ``decision``, ``restored_counts`` (module docstring)."""
+    ON then OFF) and, with ``decision``, ``restored_counts`` (module docstring). ``guide``:
+    the frame-pair guide of a ``restore`` model (:func:`checkpoint_guide`), which then
+    reads it instead of the blurry frame."""
     import h5py
     from tqdm.auto import tqdm
 
@@ -161,6 +173,9 @@ def iter_predictions(kind: str, model, pairs_path: str | Path, events: str = "de
                           "pairs file (no voxel_transform; rerun the blur step for old files)")
     if decision is not None and stage1 is None:
         raise ConfigError("decision", f"method {kind!r} has no stage 1 to decide events for")
+    if guide is not None and (kind != "restore" or not info.has_frame_pair):
+        raise ConfigError("guide", f"a frame-pair guide goes with method restore on a pairs file with the "
+                          f"window frames (frame_first, frame_last), not {kind!r} on {pairs_path}")
     bar = tqdm(total=int(rows.size), desc=f"predict {kind}", unit="sample", disable=(not progress) or None)
     with h5py.File(pairs_path, "r") as f, torch.inference_mode():
         src = _pairs_rows(f, pairs_path, info)
@@ -197,6 +212,11 @@ def iter_predictions(kind: str, model, pairs_path: str | Path, events: str = "de
                     v = torch.from_numpy(c.reshape(c.shape[0], -1, *c.shape[3:]).astype(np.float32)).to(dev)
                 if stage1 is not None and not stage1.image_channels:
                     img = None                             # events-only restorer
+                elif guide is not None:                    # the frame-pair restorer's image
+                    first, last = (np.asarray(f[k][uniq.tolist()], np.float32)[inv] for k in ("frame_first", "frame_last"))
+                    pair = np.empty((idx.size, first.shape[1] + 1) + first.shape[2:], np.float32)
+                    pair[order] = np.stack([guide.image(a, z) for a, z in zip(first, last)])
+                    img = torch.from_numpy(pair).to(dev)
                 if stage1 is not None:                     # rdnet, restore: one stage-1 pass
                     restored, counts = run_stage1(stage1, img, v, decision)
                     b["restored"] = restored.float().cpu().numpy()
@@ -226,7 +246,8 @@ def predict(kind: str, checkpoint: str | Path | None, pairs_path: str | Path, ev
     decision = stage1_decision(checkpoint, loaded=ck) if events_out else None
     parts = list(iter_predictions(kind, model, pairs_path, events, voxel_transform=voxel_transform,
                                   batch_size=batch_size, device=device, indices=indices,
-                                  progress=progress, decision=decision))
+                                  progress=progress, decision=decision,
+                                  guide=None if ck is None else checkpoint_guide(ck)))
     if not parts:
         return {}
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
@@ -259,11 +280,12 @@ def evaluate_row(kind: str, checkpoint: str | Path | None, pairs_path: str | Pat
     and ``restoration_input`` (the input voxels vs undegraded: no restoration).
     """
     dev = _device(device)
-    model = load_method(kind, checkpoint, pairs_path, dev)
+    model, ck = _load(kind, checkpoint, pairs_path, dev, None)
     per: dict[str, list] = {}
     rest_in: dict[str, list] = {}
     for b in iter_predictions(kind, model, pairs_path, events, voxel_transform=voxel_transform,
-                              batch_size=batch_size, device=dev, progress=progress):
+                              batch_size=batch_size, device=dev, progress=progress,
+                              guide=None if ck is None else checkpoint_guide(ck)):
         per.setdefault("index", []).append(b["index"])
         per.setdefault("level", []).append(b["level"])
         if "pred" in b:

@@ -1,10 +1,15 @@
 """The learned event restorers (RDNet stage 1) behind ``rdnet restore --method rdnet``.
 
-Two networks, both :class:`rdnet.nn.models.RestoreNet` checkpoints (task ``restore`` /
-``restore_events`` of :mod:`rdnet.train.loop`):
+Three networks, all :class:`rdnet.nn.models.RestoreNet` checkpoints (task ``restore`` /
+``restore_events`` / ``restore_frames`` of :mod:`rdnet.train.loop`):
 
 * ``rdnet-image`` -- image-guided: needs the frame of each window (``needs_frames``);
-* ``rdnet-events`` -- events only (no image branch), for cameras without frames.
+* ``rdnet-events`` -- events only (no image branch), for cameras without frames;
+* ``rdnet-frames`` -- guided by the two frames that bracket each window (``frame_pairs``;
+  the checkpoint's ``extra["guide"]``, :mod:`rdnet.nn.guide`): ``rdnet restore`` then cuts
+  its windows at the frames' timestamps and hands each window its two frames; the events
+  before the first frame and after the last one, which no pair brackets, pass unchanged
+  (:meth:`LearnedRestorer.restore` with ``frame=None``).
 
 :func:`load_restorer` finds the checkpoint, in this order: the ``checkpoint`` argument
 (a ``model.pt`` file, or a folder holding ``model.pt`` or ``seed<k>/model.pt``, the
@@ -208,6 +213,14 @@ class LearnedRestorer:
     #: decided entries shared with other runs on the same recording (:class:`DecisionMemo`;
     #: count output only); set by :meth:`share_decisions`
     memo: DecisionMemo | None = None
+    #: the frame-pair guide (:class:`rdnet.nn.guide.FramePairGuide`) of a ``restore_frames``
+    #: network; None for the blurry-frame and events-only ones
+    guide: object = None
+
+    @property
+    def frame_pairs(self) -> bool:
+        """Whether each window needs the two frames that bracket it (module docstring)."""
+        return self.guide is not None
 
     def share_decisions(self, memo: DecisionMemo) -> None:
         """Take and give the decided entries of each window through ``memo`` (count output
@@ -220,7 +233,8 @@ class LearnedRestorer:
         the decision, the voxel settings, the device and the memory layout (the key of
         :class:`DecisionMemo`)."""
         d = json.dumps(self.decision or {}, sort_keys=True, default=str)
-        return f"{self.source}|{d}|{self.bins}|{self.mode}|{self.needs_frames}|{self.device}|{self.channels_last}"
+        g = None if self.guide is None else self.guide.to_dict()
+        return f"{self.source}|{d}|{self.bins}|{self.mode}|{self.needs_frames}|{g}|{self.device}|{self.channels_last}"
 
     @contextlib.contextmanager
     def parallel(self, workers: int = 0, sensor_pixels: int = 0):
@@ -273,31 +287,38 @@ class LearnedRestorer:
         d = self.decision or {}
         sup = d.get("support") or {}
         return {"kind": "learned", "source": self.source, "output": self.output,
-                "image_guided": bool(self.needs_frames), "window_us": self.window_us,
+                "image_guided": bool(self.needs_frames),
+                "guide": None if not self.needs_frames else "frame" if self.guide is None else self.guide.to_dict(),
+                "window_us": "the frame intervals" if self.frame_pairs else self.window_us,
                 "event_times": self.times, "add_events": self.add_events,
                 "delete_events": self.delete_events,
                 "decision": {"rule": d.get("rule"), "threshold": d.get("threshold"),
                              "drops_unsupported": support_applies(d),
                              "support_val_precision": sup.get("val_precision")}}
 
-    def _image(self, frame: np.ndarray, height: int, width: int):
+    def _image(self, frame, height: int, width: int):
         from rdnet.deblur.pipeline import network_images
         from rdnet.events.recording import Frames
-        im = np.asarray(frame)
-        if im.shape[:2] != (height, width):
-            raise ValidationError("frame", f"frame size {im.shape[:2]} (H, W) != sensor {(height, width)}")
-        one = Frames(im[None], np.zeros(1, np.int64), np.zeros(1, np.int64))
-        return network_images(one, self.net.image_channels)
+        ims = [np.asarray(f) for f in (frame if self.frame_pairs else (frame,))]
+        for im in ims:
+            if im.shape[:2] != (height, width):
+                raise ValidationError("frame", f"frame size {im.shape[:2]} (H, W) != sensor {(height, width)}")
+        n = len(ims)
+        images = network_images(Frames(np.stack(ims), np.arange(n, dtype=np.int64), np.zeros(n, np.int64)),
+                                self.net.image_channels - (1 if self.frame_pairs else 0))
+        return self.guide.image(images[0], images[1])[None] if self.frame_pairs else images
 
     def _tensor(self, a: np.ndarray):
         import torch
         x = torch.from_numpy(a).to(self.device)
         return x.contiguous(memory_format=torch.channels_last) if self.channels_last else x
 
-    def restore(self, events: Events, t0_us: int, t1_us: int, frame: np.ndarray | None) -> Events:
+    def restore(self, events: Events, t0_us: int, t1_us: int, frame) -> Events:
         """Restored events of the window ``t0_us <= t < t1_us`` (``frame``: the window's
         image, (H, W) or (H, W, 3), uint8 or linear float32; required when
-        ``needs_frames``, ignored otherwise)."""
+        ``needs_frames``, ignored otherwise; with :attr:`frame_pairs` the two frames at
+        ``t0_us`` and ``t1_us`` as a pair, or None for a window no pair brackets, whose
+        events are returned as they are)."""
         import torch
         from rdnet.nn.decision import sparse_decided_entries
         from rdnet.nn.sparse import SPARSE_MAX_DENSITY, SparseVoxels
@@ -305,16 +326,21 @@ class LearnedRestorer:
         t0_us, t1_us = int(t0_us), int(t1_us)
         if t1_us <= t0_us:
             raise ValidationError("window", f"t1_us {t1_us} must be after t0_us {t0_us}")
-        if self.needs_frames and frame is None:
+        if self.needs_frames and frame is None and not self.frame_pairs:
             raise ValidationError("frame", f"{self.name} needs the frame of each window")
         H, W = events.height, events.width
         ev = events.slice_time(t0_us, t1_us)            # half-open: back-to-back windows share nothing
+        if self.frame_pairs and frame is None:          # outside the frames: nothing to guide it
+            return ev
+        if self.frame_pairs and len(frame) != 2:
+            raise ValidationError("frame", f"{self.name} needs the two frames bracketing each window")
         dur = t1_us - t0_us
         split = self.output == "counts"
         guided = bool(self.net.image_channels)
         # the decided entries of this very window, when another run on the recording has them
         key = None if self.memo is None or not split else \
-            DecisionMemo.key(self.decision_fingerprint(), t0_us, t1_us, ev, frame if guided else None)
+            DecisionMemo.key(self.decision_fingerprint(), t0_us, t1_us, ev,
+                             (np.stack(frame) if self.frame_pairs else frame) if guided else None)
         decided = None if key is None else self.memo.get(key)
         if decided is None:
             if split:    # the non-zero voxels; the dense grid only for a dense window (rdnet.nn.sparse)
@@ -381,7 +407,7 @@ def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapp
         raise ConfigError("checkpoint", str(e)) from None
     if ck["model_kind"] != "restore":
         raise _fail(path, "model_kind", f"holds a {ck['model_kind']!r} model ({ck['task']}); "
-                    "a restorer is a 'restore' checkpoint (task restore or restore_events)")
+                    "a restorer is a 'restore' checkpoint (task restore, restore_events or restore_frames)")
     args, extra = ck["model_args"], ck.get("extra", {})
     bins = int(args.get("bins", 0))
     voxel = extra.get("voxel") or {}
@@ -404,7 +430,12 @@ def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapp
         decision = read_decision(extra.get("decision"), net.output)   # an unknown support rule too
     except ValidationError as e:
         raise _fail(path, "extra.decision", str(e)) from None
-    name = "rdnet-image" if image_channels else "rdnet-events"
+    from rdnet.nn.guide import FramePairGuide
+    try:
+        guide = FramePairGuide.from_dict(extra.get("guide"))
+    except ValidationError as e:
+        raise _fail(path, "extra.guide", str(e)) from None
+    name = "rdnet-events" if not image_channels else "rdnet-image" if guide is None else "rdnet-frames"
     mode = str(voxel.get("mode") or "hard")
     for key, on, what in (("add_events", add_events, "caps each voxel at"),
                           ("delete_events", delete_events, "raises each voxel to at least")):
@@ -419,7 +450,7 @@ def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapp
                            window_us=None if window is None else int(window), net=net, decision=decision,
                            bins=bins, mode=mode, source=source or str(path),
                            device=str(device), channels_last=channels_last, event_times=event_times,
-                           add_events=bool(add_events), delete_events=bool(delete_events))
+                           add_events=bool(add_events), delete_events=bool(delete_events), guide=guide)
 
 
 def load_restorer(checkpoint: str | Path | None, *, has_frames: bool, params: Mapping,

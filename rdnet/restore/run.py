@@ -10,7 +10,10 @@ the recording has them) and OUT.json beside it (OUT with suffix ``.json``):
 * ``events_in``, ``events_out``, ``kept_fraction``, ``events_not_recorded`` (output events
   that are not events of the recording, as the restorer got them: time, pixel and polarity
   compared, :func:`rdnet.events.select.shared_count`; a filter's are 0, a learned
-  restorer's are the events it adds or moves), ``windows``, ``window_us``, ``workers``
+  restorer's are the events it adds or moves), ``windows``, ``window_us`` (``"frame
+  intervals"`` for a frame-pair restorer, whose windows run from frame to frame),
+  ``events_outside_frame_pairs`` (a frame-pair restorer: events before the first frame or
+  after the last, passed on unrestored, hot pixels still dropped; else null), ``workers``
   (windows restored at once: ``restore.workers``),
   ``seconds`` (wall time of the restore loop, after reading), ``cpu_seconds`` (its CPU
   time), ``events_per_s`` (input events per second of wall time),
@@ -101,11 +104,12 @@ def shifted(chunks, latency_us: float, dropped: list | None = None):
         yield Events(arr, ev.width, ev.height, validate=False)
 
 
-def _windows_after_shift(chunks, latency_us: float, early: list, window_us: int, recording: Path):
-    """:func:`rdnet.restore.stream.windows` of the shifted chunks; a ConfigError naming
-    ``restore.latency_us`` when the shift leaves no event of a recording that has some."""
+def _windows_after_shift(chunks, latency_us: float, early: list, window_us: int, recording: Path, cuts=None):
+    """:func:`rdnet.restore.stream.windows` of the shifted chunks (``cuts``: window ends,
+    as there); a ConfigError naming ``restore.latency_us`` when the shift leaves no event
+    of a recording that has some."""
     try:
-        yield from windows(shifted(chunks, latency_us, early), window_us, path=recording)
+        yield from windows(shifted(chunks, latency_us, early), window_us, path=recording, cuts=cuts)
     except FormatError as e:
         if sum(early) and e.field == "events":
             raise ConfigError("restore.latency_us", f"{int(round(latency_us))} us is longer than the "
@@ -171,7 +175,11 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
             sensor = section(params, "sensor")
             consistency = ConsistencyAccumulator(frames, ("raw", "restored"), sensor.threshold_on,
                                                  sensor.threshold_off, sensor.log_eps, grey=grey)
-        n_in = n_out = n_win = n_pending = n_shared = 0
+        # a frame-pair restorer: windows from frame to frame, each with its two frames
+        pairs = has_frames and getattr(restorer, "frame_pairs", False)
+        cuts = frames.t_us.astype(np.int64) if pairs else None
+        frame_at = {int(t): k for k, t in enumerate(frames.t_us)} if pairs else {}
+        n_in = n_out = n_win = n_pending = n_shared = n_unpaired = 0
         pending: list[Events] = []
         t_first = t_last = None
         total = getattr(src, "n_events", None)
@@ -186,8 +194,12 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
             def windows_to_restore():
                 # (t0, t1, events as read, events handed to the restorer, frame), in order
                 for t0, t1, ev in _windows_after_shift(src.chunks(cfg.chunk_events), cfg.latency_us, early,
-                                                       window_us, recording):
-                    frame = nearest_frame(frames, (t0 + t1) // 2, grey) if has_frames else None
+                                                       window_us, recording, cuts):
+                    if pairs:      # None outside the frames: the events pass as they are
+                        k = frame_at.get(t0)
+                        frame = (grey[k], grey[k + 1]) if k is not None and frame_at.get(t1) == k + 1 else None
+                    else:
+                        frame = nearest_frame(frames, (t0 + t1) // 2, grey) if has_frames else None
                     yield t0, t1, ev, ev if hot is None else drop_pixels(ev, hot), frame
 
             # a learned restorer on the CPU takes several windows at once (restore.workers);
@@ -197,8 +209,9 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
             with at_once as workers:
                 restored = ordered_map(lambda w: restorer.restore(w[3], w[0], w[1], w[4]),
                                        windows_to_restore(), workers)
-                for (t0, t1, ev, kept, _), res in restored:
+                for (t0, t1, ev, kept, frame), res in restored:
                     n_hot += len(ev) - len(kept)
+                    n_unpaired += len(ev) if pairs and frame is None else 0
                     n_shared += shared_count(res, kept)
                     pending.append(res)
                     n_pending += len(res)
@@ -244,6 +257,10 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                         f"dense activity) that is invention: compare with --method baf")
                 notes.append(note)
                 log.warning("%s", note)
+            if pairs and n_unpaired:
+                notes.append(f"{n_unpaired} events before the first frame or after the last one passed "
+                             f"unrestored (hot pixels still dropped): {restorer.name} restores the intervals "
+                             f"between frames")
             if consistency is not None:
                 scores["consistency"] = consistency.scores()
             elif has_frames and cfg.scores:
@@ -257,7 +274,8 @@ def restore_recording(recording: str | Path, out: str | Path, params: Mapping, *
                 "kept_fraction": n_out / n_in if n_in else None,
                 "events_not_recorded": n_out - n_shared,
                 "latency_dropped": sum(early),
-                "windows": n_win, "window_us": window_us, "workers": workers, "duration_us": duration,
+                "windows": n_win, "window_us": "frame intervals" if pairs else window_us, "workers": workers,
+                "events_outside_frame_pairs": n_unpaired if pairs else None, "duration_us": duration,
                 "seconds": seconds, "cpu_seconds": cpu_seconds, "events_per_s": n_in / seconds if seconds > 0 else None,
                 "realtime_factor": (duration * 1e-6) / seconds if seconds > 0 else None,
                 "scores": scores, "notes": notes,

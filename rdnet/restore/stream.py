@@ -5,7 +5,8 @@ The chunks come from :func:`rdnet.events.io.stream.open_events` (memory stays bo
 large Prophesee and HDF5 files). The windows tile the
 recording from its first event: [t_first + k W, t_first + (k + 1) W), k = 0, 1, ...;
 every window up to the one holding the last event is yielded (empty ones included),
-so a stateful restorer sees the stream in order. A recording whose events span more than
+so a stateful restorer sees the stream in order; with ``cuts`` (a frame-pair restorer:
+the frames' timestamps) the windows end at the cuts instead. A recording whose events span more than
 :data:`MAX_WINDOWS` windows is refused (a timestamp jump: every window is a restorer call,
 and events spanning 2^63 us once asked for a 1.3 PiB array of window edges).
 """
@@ -24,13 +25,26 @@ from rdnet.events.core import Events, concatenate
 MAX_WINDOWS = 10_000_000
 
 
-def windows(chunks: Iterator[Events], window_us: int, *, path: str | Path = "recording"
-            ) -> Iterator[tuple[int, int, Events]]:
+def windows(chunks: Iterator[Events], window_us: int, *, path: str | Path = "recording",
+            cuts=None) -> Iterator[tuple[int, int, Events]]:
     """(t0, t1, events in [t0, t1)) for consecutive windows of ``window_us`` (module
-    docstring). :class:`FormatError` naming ``path`` when there is no event at all."""
+    docstring). ``cuts`` (increasing timestamps, e.g. a recording's frame times): windows
+    end at each of them instead, so that between the first and the last cut every window
+    spans one interval between consecutive cuts; before the first cut the windows keep
+    ``window_us``, the last of them ending at the cut, and after the last cut they keep
+    ``window_us``. :class:`FormatError` naming ``path`` when there is no event at all."""
     buf: list[Events] = []
     t0 = first = None
     W = int(window_us)
+    cuts = None if cuts is None or len(cuts) == 0 else np.asarray(cuts, np.int64)
+
+    def next_end(t: int) -> int:
+        if cuts is not None:
+            i = int(np.searchsorted(cuts, t, side="right"))
+            if i < cuts.size and (i > 0 or t + W > cuts[0]):
+                return int(cuts[i])
+        return t + W
+
     for ch in chunks:
         if len(ch) == 0:
             continue
@@ -41,22 +55,22 @@ def windows(chunks: Iterator[Events], window_us: int, *, path: str | Path = "rec
         if last - first >= MAX_WINDOWS * W:
             raise FormatError(path, "t", f"events from {first} to {last} us span {(last - first) // W + 1:.3g} "
                                          f"windows of {W} us, more than {MAX_WINDOWS:,}: a timestamp jump?")
-        if last < t0 + W:
+        t1 = next_end(t0)
+        if last < t1:
             continue
         ev = concatenate(buf) if len(buf) > 1 else buf[0]
         # emit every window that ends at or before the last event seen (it is complete)
-        n_done = (last - t0) // W
-        cuts = np.searchsorted(ev.t, t0 + W * np.arange(1, n_done + 1), side="left")
         start = 0
-        for k, c in enumerate(cuts):
-            yield t0 + k * W, t0 + (k + 1) * W, ev[start:int(c)]
-            start = int(c)
-        t0 += n_done * W
+        while last >= t1:
+            c = start + int(np.searchsorted(ev.t[start:], t1, side="left"))
+            yield t0, t1, ev[start:c]
+            start = c
+            t0, t1 = t1, next_end(t1)
         buf = [ev[start:]]
     if t0 is None:
         raise FormatError(path, "events", "recording has no events")
     ev = concatenate(buf) if len(buf) > 1 else buf[0]
-    yield t0, t0 + W, ev
+    yield t0, next_end(t0), ev
 
 
 def ordered_map(fn: Callable, items: Iterable, workers: int = 1) -> Iterator[tuple]:

@@ -47,7 +47,10 @@ ARRAY_KEYS = ("blurry", "sharp", "voxel_undegraded", "voxel_degraded", "sequence
               "duration_us", "level")
 #: optional per-polarity count voxels (written by :func:`make_samples`; older files lack them).
 POLARITY_KEYS = ("voxel_undegraded_on", "voxel_undegraded_off", "voxel_degraded_on", "voxel_degraded_off")
-_DTYPES = {**{k: np.float32 for k in POLARITY_KEYS}, "blurry": np.float32, "sharp": np.float32, "voxel_undegraded": np.float32,
+#: the sharp frames at the start and the end of each blur window (optional datasets; the
+#: ``frame_pair`` guide of stage 1, :mod:`rdnet.nn.guide`)
+FRAME_KEYS = ("frame_first", "frame_last")
+_DTYPES = {**{k: np.float32 for k in POLARITY_KEYS + FRAME_KEYS}, "blurry": np.float32, "sharp": np.float32, "voxel_undegraded": np.float32,
            "voxel_degraded": np.float32, "sequence": np.int32, "t0_us": np.int64,
            "duration_us": np.int64, "level": np.float64}
 
@@ -124,7 +127,8 @@ def make_samples(frames: Frames, ideal: Events, degraded: Events, cfg: BlurConfi
     """Blurry/sharp/voxel samples of one sequence (frames and events share a time base).
 
     Returns a dict of arrays with one row per blurry frame: ``blurry``/``sharp`` (N, C, H, W)
-    float32, ``voxel_undegraded``/``voxel_degraded`` (N, bins, H, W), their per-polarity
+    float32, ``frame_first``/``frame_last`` (N, C, H, W) float32 (the window's first and last
+    sharp frame, at ``t0_us`` and ``t0_us + duration_us``), ``voxel_undegraded``/``voxel_degraded`` (N, bins, H, W), their per-polarity
     counts ``voxel_{undegraded,degraded}_{on,off}`` (N, bins, H, W), ``sequence`` int32,
     ``t0_us``/``duration_us`` int64, ``level`` float64 (``level`` if given, e.g.
     ``rdnet.sim.randomize.degradation_level``; else :func:`voxel_discrepancy`) and
@@ -140,6 +144,7 @@ def make_samples(frames: Frames, ideal: Events, degraded: Events, cfg: BlurConfi
     c = 3 if frames.is_color else 1
     H, W = frames.height, frames.width
     out = {"blurry": np.empty((n, c, H, W), np.float32), "sharp": np.empty((n, c, H, W), np.float32),
+           **{k: np.empty((n, c, H, W), np.float32) for k in FRAME_KEYS},
            "voxel_undegraded": np.empty((n, bins, H, W), np.float32),
            "voxel_degraded": np.empty((n, bins, H, W), np.float32),
            **{k: np.empty((n, bins, H, W), np.float32) for k in POLARITY_KEYS},
@@ -149,6 +154,7 @@ def make_samples(frames: Frames, ideal: Events, degraded: Events, cfg: BlurConfi
         chunk = lin[i0:i0 + k]
         out["blurry"][j] = _chw(chunk.mean(axis=0, dtype=np.float64).astype(np.float32)[None])[0]
         out["sharp"][j] = _chw(chunk[k // 2][None])[0]
+        out["frame_first"][j], out["frame_last"][j] = _chw(chunk[[0, -1]])
         t0 = int(frames.t_us[i0])
         dur = int(frames.t_us[i0 + k - 1]) - t0
         if dur <= 0:
@@ -197,6 +203,16 @@ class PairsWriter:
                                           dtype=dtype, chunks=(1,) + row_shape if row_shape else (4096,), **comp)
         return self._f[name]
 
+    def _optional(self, samples: Mapping, keys: tuple, what: str) -> list[str]:
+        """The keys of an optional group of datasets that ``samples`` holds: all or none,
+        and in every append or in none."""
+        present = [k for k in keys if k in samples]
+        if present and len(present) != len(keys):
+            raise ValidationError("samples", f"{what} incomplete: have {present}")
+        if self.n and bool(present) != (keys[0] in self._f):
+            raise ValidationError("samples", f"{what} present in some appends only")
+        return present
+
     def append(self, samples: Mapping) -> None:
         n = int(np.asarray(samples["blurry"]).shape[0])
         if n == 0:
@@ -207,18 +223,15 @@ class PairsWriter:
         if missing:
             raise ValidationError("samples", f"missing {missing}")
         rows = {k: np.asarray(samples[k], _DTYPES[k]) for k in ARRAY_KEYS}
-        present = [k for k in POLARITY_KEYS if k in samples]
-        if present and len(present) != len(POLARITY_KEYS):
-            raise ValidationError("samples", f"per-polarity voxels incomplete: have {present}")
-        if self.n and bool(present) != (POLARITY_KEYS[0] in self._f):
-            raise ValidationError("samples", "per-polarity voxels present in some appends only")
-        rows.update({k: np.asarray(samples[k], _DTYPES[k]) for k in present})
+        present = self._optional(samples, POLARITY_KEYS, "per-polarity voxels")
+        frames = self._optional(samples, FRAME_KEYS, "window frames")
+        rows.update({k: np.asarray(samples[k], _DTYPES[k]) for k in present + frames})
         rows.update({f"degrade/{k}": np.asarray(samples["degrade"][k], np.float64) for k in DEGRADE_KEYS})
         for k, a in rows.items():
             if a.shape[0] != n:
                 raise ValidationError(k, f"{a.shape[0]} rows, expected {n}")
         for k, ch in (("blurry", c), ("sharp", c), ("voxel_undegraded", b), ("voxel_degraded", b),
-                      *((k, b) for k in present)):
+                      *((k, b) for k in present), *((k, c) for k in frames)):
             if rows[k].ndim != 4 or rows[k].shape[1] != ch:
                 raise ValidationError(k, f"expected (N, {ch}, H, W), got {rows[k].shape}")
         for k, a in rows.items():

@@ -66,7 +66,7 @@ def read_timing(path: Path | None) -> dict:
         return {}
 
 
-def _train_one(task, train_cfg, model_cfg, train_path, out, events, init, init_deblur, progress) -> dict:
+def _train_one(task, train_cfg, model_cfg, train_path, out, events, init, init_deblur, guide, progress) -> dict:
     """Worker body: one seed's training (also run in-process when parallel is 1). Returns
     the train.json record plus ``wall_s`` (None for a finished run, not re-timed)."""
     from rdnet.train.loop import train
@@ -76,7 +76,7 @@ def _train_one(task, train_cfg, model_cfg, train_path, out, events, init, init_d
     finished = record_path.is_file() and (out / "model.pt").is_file() and not (out / "last.pt").is_file()
     t0 = time.perf_counter()
     ck = train(task, train_cfg, model_cfg, train_path, out, events=events, init_checkpoint=init,
-               init_deblur=init_deblur, resume=True, progress=progress)
+               init_deblur=init_deblur, resume=True, progress=progress, guide=guide)
     wall = time.perf_counter() - t0
     if finished:
         return {"wall_s": None, **json.loads(record_path.read_text())}   # older records hold wall_s
@@ -97,8 +97,9 @@ def _train_one(task, train_cfg, model_cfg, train_path, out, events, init, init_d
 
 def train_seeds(net: NetworkConfig, study: StudyConfig, train_cfg, model_cfg, train_path: str | Path,
                 out_dir: str | Path, *, init: str | Path | None = None, init_deblur: str | Path | None = None,
-                progress: bool = True, timing: str | Path | None = None) -> dict:
-    """Train ``net`` for every seed of ``study`` into ``out_dir/seed<k>``; ``init`` (a
+                progress: bool = True, timing: str | Path | None = None, guide=None) -> dict:
+    """Train ``net`` for every seed of ``study`` into ``out_dir/seed<k>``; ``guide``: the
+    frame-pair guide of task restore_frames (:func:`rdnet.train.run.frame_pair_guide`); ``init`` (a
     network directory or a ``.pt`` file) gives each seed's starting weights, seed by seed
     (:func:`~rdnet.study.config.seed_checkpoint`), and ``init_deblur`` RDNet's stage 2.
     Writes ``summary.json`` (no wall time) and the wall times to ``timing`` (default
@@ -114,7 +115,8 @@ def train_seeds(net: NetworkConfig, study: StudyConfig, train_cfg, model_cfg, tr
         cfg = _seed_train_cfg(train_cfg, net, s)
         ini = None if init is None else str(seed_checkpoint(init, s))
         ini2 = None if init_deblur is None else str(seed_checkpoint(init_deblur, s))
-        jobs.append((net.task, cfg, model_cfg, str(train_path), str(seed_dir(out_dir, s)), net.events, ini, ini2))
+        jobs.append((net.task, cfg, model_cfg, str(train_path), str(seed_dir(out_dir, s)), net.events, ini, ini2,
+                     guide))
     workers = min(study.parallel, len(jobs))
     if workers == 1:
         records = [_train_one(*j, progress) for j in jobs]

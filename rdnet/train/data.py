@@ -31,6 +31,12 @@ Per-polarity counts: when the file holds ``voxel_{kind}_on``/``_off``
 (the input and target of the count-output RestoreNet). Files without them still load
 (``PairsInfo.has_counts`` is False).
 
+Frame-pair guide (``guide``, a :class:`rdnet.nn.guide.FramePairGuide`; the
+``restore_frames`` task): samples also carry ``guide`` (C + 1, h, w), the window's first
+sharp frame and the change of log intensity to its last one over the threshold, built
+from the file's ``frame_first``/``frame_last`` after the crop and flips
+(``PairsInfo.has_frame_pair``; a file without them is refused).
+
 Bad values: :func:`check_finite` refuses a file whose float data hold NaN or inf (the
 training loop runs it before the first step); a dataset that is an HDF5 group is refused
 by :func:`read_pairs_info` (:func:`pairs_dataset`).
@@ -52,7 +58,7 @@ from torch.utils.data import Dataset, Sampler
 
 from rdnet.errors import ConfigError, FormatError
 from rdnet.events.io._common import require_file
-from rdnet.sim.blur import POLARITY_KEYS
+from rdnet.sim.blur import FRAME_KEYS, POLARITY_KEYS
 
 #: datasets every pairs file must hold: name -> number of dimensions.
 REQUIRED = {"blurry": 4, "sharp": 4, "voxel_undegraded": 4, "voxel_degraded": 4, "level": 1}
@@ -64,10 +70,12 @@ PRELOAD_MAX_BYTES = 1 << 30
 FINITE_CHUNK_BYTES = 64 << 20
 
 
-def sample_datasets(info: PairsInfo) -> tuple[str, ...]:
+def sample_datasets(info: PairsInfo, frame_pair: bool = False) -> tuple[str, ...]:
     """The per-row image and voxel datasets of a pairs file that a sample reads (by
-    :class:`PairsDataset` and :func:`rdnet.eval.predict.iter_predictions`)."""
-    return ("blurry", "sharp", "voxel_undegraded", "voxel_degraded") + (POLARITY_KEYS if info.has_counts else ())
+    :class:`PairsDataset` and :func:`rdnet.eval.predict.iter_predictions`); ``frame_pair``:
+    the window's first and last frames too (the frame-pair guide)."""
+    return (("blurry", "sharp", "voxel_undegraded", "voxel_degraded") + (POLARITY_KEYS if info.has_counts else ())
+            + (FRAME_KEYS if frame_pair else ()))
 
 
 def read_rows_whole(f, names, rows: np.ndarray | None = None) -> dict | None:
@@ -113,7 +121,7 @@ def check_finite(path: str | Path, info: PairsInfo | None = None,
     info = read_pairs_info(path) if info is None else info
     chunk_bytes = FINITE_CHUNK_BYTES if chunk_bytes is None else int(chunk_bytes)
     with h5py.File(path, "r") as f:
-        for name in sample_datasets(info) + ("level",):
+        for name in sample_datasets(info, info.has_frame_pair) + ("level",):
             d = f[name]
             if not np.issubdtype(d.dtype, np.inexact):
                 continue
@@ -139,6 +147,7 @@ class PairsInfo:
     height: int
     width: int
     has_counts: bool = False
+    has_frame_pair: bool = False
 
 
 def read_pairs_info(path: str | Path) -> PairsInfo:
@@ -177,8 +186,15 @@ def read_pairs_info(path: str | Path) -> PairsInfo:
         for k in present:
             if pairs_dataset(f, path, k).shape != (n, b, h, w):
                 raise FormatError(path, k, f"shape {f[k].shape}, expected {(n, b, h, w)}")
+        frames = [k for k in FRAME_KEYS if k in f]
+        for k in frames:
+            if pairs_dataset(f, path, k).shape != (n, c, h, w):
+                raise FormatError(path, k, f"shape {f[k].shape}, expected {(n, c, h, w)}")
+        if frames and len(frames) != len(FRAME_KEYS):
+            raise FormatError(path, sorted(set(FRAME_KEYS) - set(frames))[0], "missing (the file has only one "
+                              "of the window frames)")
     return PairsInfo(n=int(n), channels=int(c), bins=int(b), height=int(h), width=int(w),
-                     has_counts=bool(present))
+                     has_counts=bool(present), has_frame_pair=bool(frames))
 
 
 def split_rows(path: str | Path, val_sequences: int) -> tuple[np.ndarray, np.ndarray]:
@@ -251,10 +267,13 @@ class PairsDataset(Dataset):
     rows this dataset serves (default all); ``dataset[i]`` is file row ``rows[i]``.
     ``clean_fraction``: the share of samples (drawn by :func:`draw_clean`) whose degraded
     events are replaced by the undegraded ones (``level`` 0): identity pairs for stage 1.
+    ``guide``: a :class:`rdnet.nn.guide.FramePairGuide`: samples also carry ``guide``
+    (module docstring); the file must hold the window frames.
     """
 
     def __init__(self, path: str | Path, events: str = "degraded", crop: int | None = None,
-                 augment: bool = False, *, seed: int = 0, rows=None, clean_fraction: float = 0.0):
+                 augment: bool = False, *, seed: int = 0, rows=None, clean_fraction: float = 0.0,
+                 guide=None):
         if events not in EVENT_KINDS:
             raise ConfigError("events", f"must be one of {list(EVENT_KINDS)}, got {events!r}")
         self.path = Path(path)
@@ -269,6 +288,10 @@ class PairsDataset(Dataset):
             raise ConfigError("clean_fraction", f"must be in [0, 1), got {clean_fraction}")
         self.events, self.crop, self.augment, self.seed = events, crop, bool(augment), int(seed)
         self.clean_fraction = float(clean_fraction)
+        if guide is not None and not self.info.has_frame_pair:
+            raise FormatError(self.path, FRAME_KEYS[0], "missing: the frame-pair guide reads each window's first "
+                              "and last frame (a pairs file written before they existed: rerun the blur step)")
+        self.guide = guide
         self.rows = np.arange(self.info.n) if rows is None else np.asarray(rows, np.int64)
         if self.rows.size and (self.rows.min() < 0 or self.rows.max() >= self.info.n):
             raise ConfigError("rows", f"row out of range [0, {self.info.n}) of {self.path}")
@@ -296,7 +319,7 @@ class PairsDataset(Dataset):
         f = self._h5()
         if self._arrays is None:
             rows = np.unique(self.rows)
-            names = sample_datasets(self.info) + ("level",)
+            names = sample_datasets(self.info, self.guide is not None) + ("level",)
             arrays = read_rows_whole(f, names, None if rows.size == self.info.n else rows)
             if arrays is None:
                 self._arrays, self._at = f, None
@@ -326,14 +349,19 @@ class PairsDataset(Dataset):
                                               self.info.width, self.crop, self.augment)
         f, at = self._source(index)
         win = (at, slice(None), slice(y0, y0 + ch), slice(x0, x0 + cw))
-        out = {}
-        for name in sample_datasets(self.info):
+        out, frames = {}, {}
+        for name in sample_datasets(self.info, self.guide is not None):
             a = np.array(f[name][win], dtype=np.float32)     # a copy: never a view of the preloaded arrays
             if fh:
                 a = a[:, :, ::-1]
             if fv:
                 a = a[:, ::-1, :]
-            out[name] = torch.from_numpy(np.ascontiguousarray(a))
+            if name in FRAME_KEYS:
+                frames[name] = a
+            else:
+                out[name] = torch.from_numpy(np.ascontiguousarray(a))
+        if self.guide is not None:
+            out["guide"] = torch.from_numpy(self.guide.image(*(frames[k] for k in FRAME_KEYS)))
         if self.info.has_counts:
             for kind in EVENT_KINDS:
                 out[f"counts_{kind}"] = torch.cat([out.pop(f"voxel_{kind}_on"), out.pop(f"voxel_{kind}_off")])

@@ -12,6 +12,11 @@ Tasks (:data:`TASKS`) and their objectives (RDNet paper, Sec. 3.4):
   (:func:`fit_decision`) and stored in ``model.pt`` as ``extra["decision"]``.
 * ``restore_events`` -- the same without the image branch (events-only restorer for
   cameras without frames; ``image_channels = 0``).
+* ``restore_frames`` -- the same guided by the two sharp frames that bracket the window
+  instead of the blurry one (``guide``, :class:`rdnet.nn.guide.FramePairGuide`: the first
+  frame and the log change to the last over the threshold; ``image_channels = C + 1``);
+  the restorer of recordings with frames that says how many events a window lost
+  (docs/restoration.md, "The frames bracketing the window").
 * ``deblur`` / ``deblurnet_matched`` -- a :class:`~rdnet.nn.models.DeblurNet` on
   (blurry, E) with E the ``events`` kind (undegraded or degraded), trained with L_d
   (:func:`rdnet.nn.losses.deblur_loss`) towards the sharp frame.
@@ -61,12 +66,12 @@ from rdnet.train.distributed import DistInfo, dist_info, all_reduce_mean, barrie
 log = logging.getLogger(__name__)
 
 #: task -> network kind of :func:`rdnet.nn.models.build_model`.
-TASKS = {"restore": "restore", "restore_events": "restore", "deblur": "deblur",
+TASKS = {"restore": "restore", "restore_events": "restore", "restore_frames": "restore", "deblur": "deblur",
          "deblurnet_matched": "deblurnet_matched", "image_only": "image_only", "rdnet": "rdnet"}
 #: train keys that may change between a checkpoint and the run that resumes it.
 RESUME_FREE = ("log_every", "ckpt_every", "num_workers", "threads", "device", "dvclive")
 #: tasks trained on stage-1 rows only (validation sequences held out, decision fitted).
-RESTORE_TASKS = ("restore", "restore_events")
+RESTORE_TASKS = ("restore", "restore_events", "restore_frames")
 #: tasks whose input events are a choice (``events``: undegraded or degraded); every other
 #: task takes the default, degraded
 EVENT_INPUT_TASKS = ("deblur", "deblurnet_matched")
@@ -94,8 +99,9 @@ def model_args(task: str, model_cfg: ModelConfig, image_channels: int, bins: int
     when not the default (old checkpoints stay equal)."""
     if task not in TASKS:
         raise ConfigError("task", f"unknown task {task!r}; known: {', '.join(TASKS)}")
-    args = {"kind": TASKS[task], "size": model_cfg.size,
-            "image_channels": 0 if task == "restore_events" else int(image_channels),
+    # restore_frames: the window's first frame and the log change to its last (rdnet.nn.guide)
+    channels = {"restore_events": 0, "restore_frames": int(image_channels) + 1}.get(task, int(image_channels))
+    args = {"kind": TASKS[task], "size": model_cfg.size, "image_channels": channels,
             "bins": int(bins), **model_cfg.overrides()}
     if restore_output != "signed" and task in RESTORE_TASKS + ("rdnet",):
         args["restore_output"] = restore_output
@@ -122,7 +128,7 @@ def compute_loss(task: str, model: nn.Module, batch: Mapping[str, torch.Tensor],
     net = ckpt_mod.unwrap(model)
     counts = cfg.restore_output == "counts"
     if task in RESTORE_TASKS:
-        image = None if task == "restore_events" else blurry
+        image = None if task == "restore_events" else stage1_image(batch)
         if counts:
             mu, logit = model(image, batch["counts_degraded"], return_heads=True)
             t = count_loss_terms(mu, logit, batch["counts_undegraded"], cfg.count_loss)
@@ -211,6 +217,12 @@ def _median_window_us(path: str | Path, rows) -> int | None:
 
 
 # --- the voxel -> event decision -------------------------------------------------------
+def stage1_image(batch: Mapping[str, torch.Tensor]) -> torch.Tensor:
+    """The image that guides stage 1: the batch's ``guide`` when its dataset builds one (the
+    frame-pair guide, :class:`rdnet.train.data.PairsDataset`), else the blurry frame."""
+    return batch["guide"] if "guide" in batch else batch["blurry"]
+
+
 @torch.no_grad()
 def predict_counts(net: nn.Module, data: PairsDataset, device: torch.device, *, image: bool = True,
                    batch_size: int = 8, with_support: bool = False):
@@ -226,7 +238,7 @@ def predict_counts(net: nn.Module, data: PairsDataset, device: torch.device, *, 
     for i0 in range(0, len(data), batch_size):
         rows = [data[i] for i in range(i0, min(len(data), i0 + batch_size))]
         batch = {k: torch.stack([r[k] for r in rows]).to(device) for k in rows[0] if k not in ("level", "index")}
-        img = batch["blurry"] if image else None
+        img = stage1_image(batch) if image else None
         if counts:
             mu, logit = net(img, batch["counts_degraded"], return_heads=True)
             outs.append(mu.cpu().numpy())
@@ -243,7 +255,7 @@ def predict_counts(net: nn.Module, data: PairsDataset, device: torch.device, *, 
 
 
 def fit_decision(net: nn.Module, train_path: str | Path, val_rows, device: torch.device, *,
-                 image: bool = True, support_rule: bool = True, count_gain: bool = False) -> dict:
+                 image: bool = True, support_rule: bool = True, count_gain: bool = False, guide=None) -> dict:
     """The voxel -> event decision of a trained RestoreNet (``extra["decision"]``):
     counts output -- the occupancy threshold fitted on the validation rows so that the
     restored event count matches the undegraded one (:func:`rdnet.nn.decision.fit_threshold`)
@@ -252,7 +264,8 @@ def fit_decision(net: nn.Module, train_path: str | Path, val_rows, device: torch
     threshold when it drops them), and with ``count_gain`` (``train.fit_count_gain``) the
     count head's gain (:func:`rdnet.nn.decision.fit_count_gain`: the gain whose refitted
     threshold gives the highest validation F1); signed output -- the paper's rounding. Both with the
-    validation event metrics (:func:`rdnet.eval.events.match_metrics`) of the decided events."""
+    validation event metrics (:func:`rdnet.eval.events.match_metrics`) of the decided events.
+    ``guide``: the frame-pair guide the network reads (:mod:`rdnet.nn.guide`), or None."""
     from rdnet.eval.events import match_metrics
     from rdnet.nn.decision import (decide_counts, decision_dict, decision_gain, fit_count_gain, fit_support,
                                    fit_threshold, polarity_grid, split_signed, support_applies)
@@ -260,7 +273,7 @@ def fit_decision(net: nn.Module, train_path: str | Path, val_rows, device: torch
         if net.output == "counts":
             raise ConfigError("train.val_sequences", "the counts decision needs validation rows")
         return decision_dict(None, fitted_on="none")
-    data = PairsDataset(train_path, events="degraded", crop=None, augment=False, rows=val_rows)
+    data = PairsDataset(train_path, events="degraded", crop=None, augment=False, rows=val_rows, guide=guide)
     try:
         out, prob, target, support = predict_counts(net, data, device, image=image, with_support=True)
     finally:
@@ -387,7 +400,7 @@ def _open_live(out_dir: Path, resume: bool, params: Mapping):
 def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str | Path,
           out_dir: str | Path, *, events: str = "degraded", init_checkpoint: str | Path | None = None,
           init_deblur: str | Path | None = None,
-          resume: bool = True, progress: bool = True, stop_after: int | None = None) -> Path:
+          resume: bool = True, progress: bool = True, stop_after: int | None = None, guide=None) -> Path:
     """Train ``task`` on the pairs file ``train_path``; return ``out_dir/model.pt``.
 
     ``events``: the input event kind of deblur/deblurnet_matched (undegraded or
@@ -399,6 +412,8 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
     settings); a finished ``model.pt`` of the same settings is returned as is.
     ``stop_after``: stop once this many steps are done, as if killed right after the
     checkpoint saved then (for tests of resuming); returns ``last.pt``.
+    ``guide`` (task restore_frames only, required there): the
+    :class:`rdnet.nn.guide.FramePairGuide` of the image input, stored in the checkpoint.
 
     Runs data-parallel when ``torch.distributed`` is initialised (see
     :mod:`rdnet.train.distributed`): each process takes its share of every step's
@@ -412,6 +427,9 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
         raise ConfigError("events", f"task {task!r} reads no choice of events (restore and rdnet read the "
                           f"degraded ones and target the undegraded; image_only reads none); only "
                           f"{', '.join(EVENT_INPUT_TASKS)} take events: {events}")
+    if (guide is not None) != (task == "restore_frames"):
+        raise ConfigError("guide", "task restore_frames reads the frame-pair guide and needs one" if guide is None
+                          else f"only task restore_frames reads a frame-pair guide, not {task!r}")
     info = dist_info()
     device = resolve_device(cfg.device, info)
     if cfg.threads > 0:
@@ -421,7 +439,8 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
 
     rows, val_rows = split_rows(train_path, cfg.val_sequences if task in RESTORE_TASKS else 0)
     data = PairsDataset(train_path, events=events, crop=cfg.crop, augment=cfg.augment, seed=cfg.seed,
-                        rows=rows, clean_fraction=cfg.clean_fraction if task in RESTORE_TASKS else 0.0)
+                        rows=rows, clean_fraction=cfg.clean_fraction if task in RESTORE_TASKS else 0.0,
+                        guide=guide)
     counts = cfg.restore_output == "counts" and task in RESTORE_TASKS + ("rdnet",)
     if counts and not data.info.has_counts:
         raise FormatError(Path(train_path), "voxel_degraded_on", "train.restore_output counts needs the "
@@ -436,9 +455,12 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
              "init_checkpoint": None if init_checkpoint is None else str(init_checkpoint),
              "init_deblur": None if init_deblur is None else str(init_deblur),
              "model_cfg": to_dict(model_cfg),
-             # the shape only (has_counts is a property of the file, not of the run)
-             "pairs_shape": {k: v for k, v in dataclasses.asdict(data.info).items() if k != "has_counts"},
+             # the shape only (has_counts, has_frame_pair: properties of the file, not of the run)
+             "pairs_shape": {k: v for k, v in dataclasses.asdict(data.info).items()
+                             if k not in ("has_counts", "has_frame_pair")},
              "voxel": read_pairs_voxel(train_path)}
+    if guide is not None:
+        extra["guide"] = guide.to_dict()
     if task in RESTORE_TASKS:
         extra["val_rows"] = [int(r) for r in val_rows]
         extra["window_us"] = _median_window_us(train_path, rows)
@@ -552,8 +574,8 @@ def train(task: str, cfg: TrainConfig, model_cfg: ModelConfig, train_path: str |
         return last_path
     if task in RESTORE_TASKS:
         extra["decision"] = fit_decision(net, train_path, val_rows, device, image=task != "restore_events",
-                                         support_rule=cfg.support_rule,
-                                         count_gain=cfg.fit_count_gain) if main else None
+                                         support_rule=cfg.support_rule, count_gain=cfg.fit_count_gain,
+                                         guide=guide) if main else None
     elif task == "rdnet" and init_checkpoint is not None:
         init_extra = ckpt_mod.read_checkpoint(init_checkpoint).get("extra", {})
         extra["decision"] = init_extra.get("decision")

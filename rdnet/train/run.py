@@ -39,7 +39,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     # no ``choices`` from rdnet.train.loop.TASKS: that module imports torch, and this runs
     # whenever the ``rdnet`` CLI builds its parser; train() rejects an unknown task
     p.add_argument("--task", required=True,
-                   help="what to train: restore, deblur, deblurnet_matched, ... (rdnet.train.loop.TASKS)")
+                   help="what to train: restore, restore_events, restore_frames, deblur, deblurnet_matched, ... "
+                        "(rdnet.train.loop.TASKS)")
     p.add_argument("--train", dest="train_path", type=Path, required=True, help="pairs file (HDF5)")
     p.add_argument("--out", type=Path, required=True, help="output folder (model.pt, last.pt, dvclive/)")
     p.add_argument("--events", choices=["degraded", "undegraded"], default="degraded",
@@ -59,6 +60,18 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
+def frame_pair_guide(task: str, params):
+    """The frame-pair guide of task ``restore_frames`` (:mod:`rdnet.nn.guide`): the log
+    offset and ON threshold of ``params``' ``sensor`` section, the simulator's that made
+    the pairs; None for every other task."""
+    if task != "restore_frames":
+        return None
+    from rdnet.config import section
+    from rdnet.nn.guide import FramePairGuide
+    sensor = section(params, "sensor")
+    return FramePairGuide(float(sensor.log_eps), float(sensor.threshold_on))
+
+
 def run(args) -> int:
     from rdnet.config import load_cli_params, section
     from rdnet.events.io._common import check_output_folder
@@ -73,7 +86,8 @@ def run(args) -> int:
     info = distributed.init_from_env(cfg.device)
     try:
         path = train(args.task, cfg, model_cfg, args.train_path, args.out, events=args.events,
-                     init_checkpoint=args.init_checkpoint, resume=args.resume, progress=args.progress)
+                     init_checkpoint=args.init_checkpoint, resume=args.resume, progress=args.progress,
+                     guide=frame_pair_guide(args.task, params))
     finally:
         distributed.cleanup()
     if info.rank == 0:

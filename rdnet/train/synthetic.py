@@ -3,7 +3,8 @@ tests, smoke runs and timing benchmarks; not a substitute for the simulated data
 
 Each sample is a smooth random texture translated horizontally during the exposure:
 ``K = bins + 1`` sub-frames ``S_0 .. S_bins`` (shift ``k * speed`` pixels), blurry = their
-mean (box motion blur), sharp = the middle sub-frame. The undegraded voxel bin ``b``
+mean (box motion blur), sharp = the middle sub-frame, ``frame_first``/``frame_last`` =
+``S_0``/``S_bins`` (the window's end frames). The undegraded voxel bin ``b``
 holds ``round((log(S_{b+1} + eps) - log(S_b + eps)) / threshold)`` (signed event
 counts of an ideal pixel with contrast threshold ``threshold``). The degraded voxels
 drop each count with probability ``drop`` and add +-1 noise with probability
@@ -49,6 +50,7 @@ def write_synthetic_pairs(path: str | Path, n: int = 8, *, channels: int = 1, bi
     pad = int(np.ceil(speed * K)) + 1
     blurry = np.empty((n, channels, height, width), np.float32)
     sharp = np.empty_like(blurry)
+    first, last = np.empty_like(blurry), np.empty_like(blurry)        # the window's end frames
     vu = np.empty((n, bins, height, width), np.float32)
     vd = np.empty_like(vu)
     level = rng.uniform(0, 1, n)
@@ -57,6 +59,7 @@ def write_synthetic_pairs(path: str | Path, n: int = 8, *, channels: int = 1, bi
         subs = np.stack([tex[:, :, int(round(k * speed)):int(round(k * speed)) + width] for k in range(K)])
         blurry[i] = subs.mean(0)
         sharp[i] = subs[K // 2]
+        first[i], last[i] = subs[0], subs[-1]
         logi = np.log(subs.mean(1) + eps)                     # (K, h, w) luminance proxy
         vu[i] = np.round(np.diff(logi, axis=0) / threshold)
         drop = rng.random(vu[i].shape) < 0.5 * level[i]
@@ -70,7 +73,8 @@ def write_synthetic_pairs(path: str | Path, n: int = 8, *, channels: int = 1, bi
         elif fl.name == "shot_noise_hz":
             v = np.where(level > 0.5, 5.0 * level, 0.0)
         degrade[fl.name] = v
-    samples = {"blurry": blurry, "sharp": sharp, "voxel_undegraded": vu, "voxel_degraded": vd,
+    samples = {"blurry": blurry, "sharp": sharp, "frame_first": first, "frame_last": last,
+               "voxel_undegraded": vu, "voxel_degraded": vd,
                "sequence": np.arange(n, dtype=np.int32) // 2,
                "t0_us": np.arange(n, dtype=np.int64) * 10000, "duration_us": np.full(n, 5000, np.int64),
                "level": level, "degrade": degrade}
