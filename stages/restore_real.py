@@ -1,5 +1,6 @@
 """Stage `restore_real`: every restore method (raw, baf, stcf, gef where the recording has
-frames, rdnet when the learned restorer is installed, ednccn when models/ednccn is trained)
+frames, rdnet when the learned restorer is installed, ednccn when models/ednccn is trained,
+rdnet_frames -- the frame-pair restorer of models/restore_frames -- where it has frames)
 over the real recordings of data/real and those of --shared that rdnet can read (others
 are skipped with a warning), scored without ground truth (params: restore, sensor).
 
@@ -30,6 +31,9 @@ DELETIONS_ONLY = Run("rdnet_deletions_only", "rdnet", restore={"add_events": Fal
 #: And its counterpart that only adds (each voxel raised to its input events, every recorded
 #: event kept, restore.delete_events: false): the two rows split the learned restorer's effect.
 ADDITIONS_ONLY = Run("rdnet_additions_only", "rdnet", restore={"delete_events": False}, suffix=" (additions only)")
+#: On the recordings with frames: the restorer guided by the two frames that bracket each
+#: window (task restore_frames, its lowest seed; windows from frame to frame).
+FRAME_PAIRS = Run("rdnet_frames", "rdnet", checkpoint=Path("models/restore_frames"), needs_frames=True)
 
 
 def figure(path, name, raw, outs, act):
@@ -91,7 +95,8 @@ def main(args, params):
         if args.only and name not in args.only:
             continue
         log.info("restoring %s (%s)", name, path)
-        runs = [Run(m, m) for m in METHODS] + [DELETIONS_ONLY, ADDITIONS_ONLY] + (list(VARIANTS) if name in facts.hot_pixels else [])
+        runs = ([Run(m, m) for m in METHODS] + [DELETIONS_ONLY, ADDITIONS_ONLY, FRAME_PAIRS]
+                + (list(VARIANTS) if name in facts.hot_pixels else []))
         sc = score_recording(name, path, params, runs, args.data_out / name, facts=facts)
         summary["recordings"][name] = sc.entry
         figure(args.out / f"{name}.png", name, sc.raw, sc.outs, sc.activity)

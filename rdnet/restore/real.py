@@ -87,6 +87,8 @@ class Run:
     checkpoint: Path | None = None
     restore: Mapping = field(default_factory=dict)
     suffix: str = ""
+    #: run only on recordings with frames (e.g. a frame-pair restorer)
+    needs_frames: bool = False
 
 
 @dataclass
@@ -131,7 +133,7 @@ def score_recording(name: str, path: Path, params: Mapping, runs: Sequence[Run],
     # additions-only rows take the same decision as the learned restorer before their filter
     memo = DecisionMemo()
     for run in runs:
-        if run.method == "gef" and not entry["has_frames"]:
+        if (run.method == "gef" or run.needs_frames) and not entry["has_frames"]:
             continue
         out = out_dir / f"{run.key.replace('/', '_')}.h5"
         run_params = {**params, "restore": {**params.get("restore", {}), **run.restore}}

@@ -327,7 +327,7 @@ def evaluate_ablation_row(cfg: AblationConfig, row_id: str, pairs_path: Path,
 #: from the checkpoint: a RestoreNet, or an RDNet whose fine-tuned stage 1 is scored).
 LEARNED_RESTORERS = {"rdnet": "models/rdnet", "rdnet_signed": "models/rdnet_signed", "rdnet_dual": "models/rdnet_dual",
                      "restore_image": "models/restore_image", "restore_events": "models/restore_events",
-                     "restore_signed": "models/restore_signed"}
+                     "restore_frames": "models/restore_frames", "restore_signed": "models/restore_signed"}
 #: event-level metrics reported per method (rdnet.eval.events.match_metrics).
 EVENT_KEYS = ("precision", "recall", "f1", "count_ratio", "voxel_l1_all", "voxel_l1_event", "restored",
               "reference")

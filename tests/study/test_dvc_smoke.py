@@ -78,7 +78,7 @@ def test_dvc_repro_and_exp_run(tmp_path):
         assert all(r["iterations"] == round(3 * factor) for r in summary["runs"])
     rest = json.loads((repo / "metrics" / "restoration.json").read_text())
     assert set(rest) == {"degraded", "stcf", "gef", "baf", "gef_voxel", "ednccn", "rdnet", "rdnet_signed",
-                         "rdnet_dual", "restore_image", "restore_events", "restore_signed"}
+                         "rdnet_dual", "restore_image", "restore_events", "restore_frames", "restore_signed"}
     assert all("voxel_l1" in v and 0 <= v["events"]["f1"] <= 1 for v in rest.values())
     assert rest["degraded"]["events"]["reference"] == rest["rdnet"]["events"]["reference"] > 0
     assert (repo / "results" / "ablation.md").read_text().count("| `") == len(rows)

@@ -146,3 +146,17 @@ def test_the_stage_exits_2_with_one_line_and_writes_nothing_on_a_bad_file(tmp_pa
     assert r.returncode == 2, r.stderr
     assert "Traceback" not in r.stderr and "field 'rdnet.events'" in r.stderr
     assert not out.exists()
+
+
+def test_the_frame_pair_restorer_is_scored_when_present_and_named_where_it_alone_meets_a_goal():
+    m = restoration(events=(0.57, 0.31, 0.6))               # the events-only restorer misses the count ratio
+    m["restore_frames"] = _events(0.55, 0.45, 1.0)          # the frame-pair one meets it, and F1, not L1
+    rows = held_out_rows(m)
+    assert "frame-pair 0.550" in rows[0][1] and rows[0][2] == "met (best baseline: EDnCNN-style)"
+    assert rows[1][2] == "**not met** (met by fine-tuned, alone, events-only)"
+    assert rows[2][2] == "**not met** (met by fine-tuned, alone, frame-pair)"
+    r = real(davis=0.34)                                     # the image-guided restorer below raw's 0.35
+    r["recordings"]["davis346_road"]["methods"]["rdnet_frames"] = _method(consistency_r2=0.37, events_out=130)
+    rows = real_rows(r)
+    assert rows[0][1] == "image-guided 0.340, frame-pair 0.370" and rows[0][2] == "**not met** (met by frame-pair)"
+    assert "frame-pair 130 (1.30x)" in rows[1][1] and rows[1][2] == "met"
