@@ -289,7 +289,7 @@ class LearnedRestorer:
         return {"kind": "learned", "source": self.source, "output": self.output,
                 "image_guided": bool(self.needs_frames),
                 "guide": None if not self.needs_frames else "frame" if self.guide is None else self.guide.to_dict(),
-                "window_us": "the frame intervals" if self.frame_pairs else self.window_us,
+                "window_us": "frame intervals" if self.frame_pairs else self.window_us,
                 "event_times": self.times, "add_events": self.add_events,
                 "delete_events": self.delete_events,
                 "decision": {"rule": d.get("rule"), "threshold": d.get("threshold"),

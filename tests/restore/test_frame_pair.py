@@ -169,4 +169,5 @@ def test_rdnet_restore_cuts_windows_at_the_frames(tmp_path):
     assert res["events_outside_frame_pairs"] == outside > 0
     assert res["events_in"] == res["events_out"] == n and res["events_not_recorded"] == 0   # identity start
     assert any("passed unrestored" in note for note in res["notes"])
-    assert json.loads((tmp_path / "out.json").read_text())["model"]["guide"]["kind"] == "frame_pair"
+    model = json.loads((tmp_path / "out.json").read_text())["model"]
+    assert model["guide"]["kind"] == "frame_pair" and model["window_us"] == "frame intervals"
