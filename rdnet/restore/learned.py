@@ -15,8 +15,11 @@ Three networks, all :class:`rdnet.nn.models.RestoreNet` checkpoints (task ``rest
 (a ``model.pt`` file, or a folder holding ``model.pt`` or ``seed<k>/model.pt``, the
 lowest ``k`` first); the study's trained restorers as ``dvc repro`` writes them
 (:data:`STUDY_MODELS`, relative to the working directory); the small exported copies
-shipped as package data (``rdnet/restore/models/<name>.pt``). It logs which one it
-uses. Every checkpoint is validated (kind, voxel bins, frames): a mismatch is a
+shipped as package data (``rdnet/restore/models/<name>.pt``). Without a checkpoint the kind
+follows the recording and ``restore.guide``: on a recording with frames the blurry-frame
+restorer (``frame``, the default) or the frame-pair one (``frame_pair``), falling back to
+the events-only one when neither is found; without frames the events-only one. It logs
+which one it uses. Every checkpoint is validated (kind, voxel bins, frames): a mismatch is a
 ConfigError naming the file and the field.
 
 :meth:`LearnedRestorer.restore` voxelises one window ``[t0, t1)`` (per polarity for the
@@ -101,10 +104,14 @@ log = logging.getLogger(__name__)
 #: (:meth:`LearnedRestorer.parallel`)
 WINDOW_PER_THREAD_MAX_PIXELS = 640 * 480
 
-#: the study's trained restorers (dvc repro outputs), by whether frames are available.
-STUDY_MODELS = {True: Path("models/restore_image"), False: Path("models/restore_events")}
-#: package-data names (rdnet/restore/models/<name>.pt), by whether frames are available.
-PACKAGE_MODELS = {True: "restore_image", False: "restore_events"}
+#: the kinds of learned restorer: what guides it besides the events (``restore.guide`` picks
+#: ``frame`` or ``frame_pair`` for a recording with frames; ``events`` without frames)
+KINDS = ("frame", "frame_pair", "events")
+#: the study's trained restorers (dvc repro outputs), by kind.
+STUDY_MODELS = {"frame": Path("models/restore_image"), "frame_pair": Path("models/restore_frames"),
+                "events": Path("models/restore_events")}
+#: package-data names (rdnet/restore/models/<name>.pt), by kind.
+PACKAGE_MODELS = {"frame": "restore_image", "frame_pair": "restore_frames", "events": "restore_events"}
 
 
 def _checkpoint_file(path: Path) -> Path | None:
@@ -455,10 +462,12 @@ def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapp
 
 def load_restorer(checkpoint: str | Path | None, *, has_frames: bool, params: Mapping,
                   device: str = "cpu", event_times: str = "input", add_events: bool = True,
-                  delete_events: bool = True) -> LearnedRestorer:
+                  delete_events: bool = True, guide: str = "frame") -> LearnedRestorer:
     """The learned restorer to use (module docstring for the search order). ``device``: cpu,
-    cuda or auto (cuda when available); ``event_times``, ``add_events``, ``delete_events``:
-    ``restore.event_times``, ``restore.add_events``, ``restore.delete_events``."""
+    cuda or auto (cuda when available); ``event_times``, ``add_events``, ``delete_events``,
+    ``guide``: ``restore.event_times``, ``restore.add_events``, ``restore.delete_events``,
+    ``restore.guide`` (which study or packaged restorer a recording with frames gets; a
+    ``checkpoint`` brings its own guide)."""
     kw = {"event_times": event_times, "add_events": add_events, "delete_events": delete_events}
     from rdnet.train.loop import resolve_device
     device = str(resolve_device(str(device), key="restore.device"))
@@ -470,33 +479,36 @@ def load_restorer(checkpoint: str | Path | None, *, has_frames: bool, params: Ma
         r = restorer_from_checkpoint(f, has_frames=has_frames, params=params, device=device, **kw)
         log.info("restorer %s from %s", r.name, f)
         return r
-    # image-guided when the recording has frames; events-only otherwise (or as fallback)
-    for frames in ((True, False) if has_frames else (False,)):
-        f = _checkpoint_file(STUDY_MODELS[frames]) if STUDY_MODELS[frames].exists() else None
+    if guide not in KINDS[:2]:
+        raise ConfigError("restore.guide", f"must be one of {list(KINDS[:2])}, got {guide!r}")
+    # the guided restorer asked for when the recording has frames; events-only otherwise (or as fallback)
+    kinds = (guide, "events") if has_frames else ("events",)
+    for kind in kinds:
+        f = _checkpoint_file(STUDY_MODELS[kind]) if STUDY_MODELS[kind].exists() else None
         if f is not None:
             r = restorer_from_checkpoint(f, has_frames=has_frames, params=params, device=device,
                                          source=f"study model {f}", **kw)
             log.info("restorer %s: the study's trained model %s", r.name, f)
             return r
-    for frames in ((True, False) if has_frames else (False,)):
-        f = _package_file(PACKAGE_MODELS[frames])
+    for kind in kinds:
+        f = _package_file(PACKAGE_MODELS[kind])
         if f is not None:
             r = restorer_from_checkpoint(f, has_frames=has_frames, params=params, device=device,
-                                         source=f"package model {PACKAGE_MODELS[frames]}", **kw)
+                                         source=f"package model {PACKAGE_MODELS[kind]}", **kw)
             log.info("restorer %s: the packaged model %s (no study model under %s)", r.name, f,
-                     STUDY_MODELS[frames].parent)
+                     STUDY_MODELS[kind].parent)
             return r
     raise ModelNotFoundError("checkpoint", "no trained restorer: give --checkpoint, run `dvc repro` "
-                      f"(writes {STUDY_MODELS[has_frames]}) or install rdnet with its packaged models")
+                      f"(writes {STUDY_MODELS[kinds[0]]}) or install rdnet with its packaged models")
 
 
-def export_restorer(checkpoint: str | Path, out_dir: str | Path, *, has_frames: bool,
+def export_restorer(checkpoint: str | Path, out_dir: str | Path, *, kind: str,
                     metrics: Mapping | None = None) -> Path:
-    """Copy a trained restorer to ``out_dir/<name>.pt`` (``name`` from
-    :data:`PACKAGE_MODELS`, e.g. the package folder ``rdnet/restore/models``) with
-    ``<name>.json``: its model arguments, training config, decision and ``metrics``.
-    The checkpoint is validated first (:func:`restorer_from_checkpoint`); both files are
-    written atomically."""
+    """Copy a trained restorer of ``kind`` (:data:`KINDS`) to ``out_dir/<name>.pt``
+    (``name`` from :data:`PACKAGE_MODELS`, e.g. the package folder ``rdnet/restore/models``)
+    with ``<name>.json``: its model arguments, training config, decision and ``metrics``.
+    The checkpoint is validated first (:func:`restorer_from_checkpoint`; a checkpoint of
+    another kind is a ConfigError); both files are written atomically."""
     import json
     import shutil
 
@@ -507,12 +519,15 @@ def export_restorer(checkpoint: str | Path, out_dir: str | Path, *, has_frames: 
     src = _checkpoint_file(Path(checkpoint))
     if src is None:
         raise ConfigError("checkpoint", f"{checkpoint}: no model.pt (nor seed<k>/model.pt) found")
+    if kind not in KINDS:
+        raise ConfigError("kind", f"must be one of {list(KINDS)}, got {kind!r}")
     r = restorer_from_checkpoint(src, has_frames=True)
-    if r.needs_frames != has_frames:
-        raise _fail(src, "model_args.image_channels", f"is {'image-guided' if r.needs_frames else 'events-only'}, "
-                    f"exported as the {'image-guided' if has_frames else 'events-only'} model")
+    have = "events" if not r.needs_frames else "frame_pair" if r.frame_pairs else "frame"
+    if have != kind:
+        raise _fail(src, "model_args.image_channels" if "events" in (have, kind) else "extra.guide",
+                    f"is a {have!r} restorer ({r.name}), exported as the {kind!r} one")
     ck = ckpt_mod.read_checkpoint(src)
-    name = PACKAGE_MODELS[has_frames]
+    name = PACKAGE_MODELS[kind]
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     with atomic_output(out_dir / f"{name}.pt") as tmp:

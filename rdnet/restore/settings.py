@@ -12,6 +12,8 @@ from rdnet.errors import ConfigError
 METHODS = ("rdnet", "baf", "stcf", "gef", "raw", "ednccn")
 #: how a learned restorer's voxel counts become events (``RestoreConfig.event_times``)
 EVENT_TIMES = ("input", "bins")
+#: what guides the learned restorer on a recording with frames (``RestoreConfig.guide``)
+GUIDES = ("frame", "frame_pair")
 
 #: bounds of the ``restore`` keys (checked by :func:`rdnet.config.check_bounds`; the filter
 #: keys are shared with ``ablation.filters``, and ``stcf_k`` is bounded by ``stcf_radius``:
@@ -88,7 +90,13 @@ class RestoreConfig:
     ``delete_events``: false raises each voxel of the learned restorer to at least its input
     events, so it adds but never deletes (every recorded event is in its output); true (the
     default) deletes the events it judges noise. Both false would return the recording as
-    it is (``method: raw``) and is refused."""
+    it is (``method: raw``) and is refused.
+    ``guide``: which trained restorer ``method: rdnet`` uses on a recording with frames when
+    no checkpoint is given: ``frame`` (the frame nearest each window, the study's
+    ``models/restore_image``) or ``frame_pair`` (the two frames bracketing each window, the
+    study's ``models/restore_frames``: windows from frame to frame; docs/restoration.md,
+    "The frames bracketing the window"); a recording without frames gets the events-only
+    restorer either way."""
 
     method: Literal["rdnet", "baf", "stcf", "gef", "raw", "ednccn"] = "rdnet"
     window_us: int = 50_000
@@ -114,6 +122,7 @@ class RestoreConfig:
     event_times: Literal["input", "bins"] = "input"
     add_events: bool = True
     delete_events: bool = True
+    guide: Literal["frame", "frame_pair"] = "frame"
 
     def __post_init__(self):
         for key in ("window_us", "chunk_events", "baf_dt_us", "stcf_tau_us", "stcf_k", "stcf_radius",
@@ -134,6 +143,8 @@ class RestoreConfig:
             raise ConfigError("restore.method", f"must be one of {list(METHODS)}, got {self.method!r}")
         if self.event_times not in EVENT_TIMES:
             raise ConfigError("restore.event_times", f"must be one of {list(EVENT_TIMES)}, got {self.event_times!r}")
+        if self.guide not in GUIDES:
+            raise ConfigError("restore.guide", f"must be one of {list(GUIDES)}, got {self.guide!r}")
         if self.gef_mode not in ("mask", "filter"):
             raise ConfigError("restore.gef_mode", f"must be mask or filter, got {self.gef_mode!r}")
         if not self.add_events and not self.delete_events:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from rdnet.errors import ConfigError, FormatError, ValidationError
+from rdnet.errors import ConfigError, FormatError, ModelNotFoundError, ValidationError
 from rdnet.events import Events, Frames, Recording
 from rdnet.nn.decision import decision_dict
 from rdnet.nn.guide import FramePairGuide
@@ -171,3 +171,29 @@ def test_rdnet_restore_cuts_windows_at_the_frames(tmp_path):
     assert any("passed unrestored" in note for note in res["notes"])
     model = json.loads((tmp_path / "out.json").read_text())["model"]
     assert model["guide"]["kind"] == "frame_pair" and model["window_us"] == "frame intervals"
+
+
+def test_restore_guide_picks_the_frame_pair_restorer_for_recordings_with_frames(tmp_path, monkeypatch):
+    """restore.guide (no --checkpoint): frame_pair takes the study's models/restore_frames on a
+    recording with frames, the events-only restorer without frames; a bad value names the key."""
+    from rdnet.restore import learned
+    from rdnet.restore.base import get_restorer
+    from rdnet.restore.learned import export_restorer
+    from rdnet.restore.settings import RestoreConfig
+    params = {"voxel": {"bins": 3, "mode": "hard", "normalize": None}}
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(learned, "_package_file", lambda name: None)       # no packaged models
+    _identity_frames_checkpoint((tmp_path / "models" / "restore_frames" / "seed0").mkdir(parents=True)
+                                or tmp_path / "models" / "restore_frames" / "seed0" / "model.pt")
+    r = get_restorer("rdnet", {**params, "restore": {"guide": "frame_pair"}}, None, has_frames=True)
+    assert r.name == "rdnet-frames" and r.source.startswith("study model models/restore_frames")
+    with pytest.raises(ModelNotFoundError, match="restore_image"):   # frame: the blurry-frame model, absent here
+        get_restorer("rdnet", params, None, has_frames=True)
+    with pytest.raises(ModelNotFoundError, match="restore_events"):  # no frames: events-only, absent here
+        get_restorer("rdnet", {**params, "restore": {"guide": "frame_pair"}}, None, has_frames=False)
+    with pytest.raises(ConfigError, match="restore.guide"):
+        RestoreConfig(guide="stereo")
+    out = export_restorer(tmp_path / "models" / "restore_frames", tmp_path / "pkg", kind="frame_pair")
+    assert out.name == "restore_frames.pt"
+    with pytest.raises(ConfigError, match="extra.guide"):
+        export_restorer(tmp_path / "models" / "restore_frames", tmp_path / "pkg", kind="frame")

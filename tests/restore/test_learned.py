@@ -180,11 +180,13 @@ def test_export_writes_model_and_card_and_package_fallback_reads_it(tmp_path, mo
     from rdnet.restore import learned
     from rdnet.restore.learned import export_restorer
     src = _save(tmp_path / "src" / "model.pt")
-    out = export_restorer(tmp_path / "src", tmp_path / "pkg", has_frames=False, metrics={"f1": 0.5})
+    out = export_restorer(tmp_path / "src", tmp_path / "pkg", kind="events", metrics={"f1": 0.5})
     card = json.loads((tmp_path / "pkg" / "restore_events.json").read_text())
     assert out.name == "restore_events.pt" and card["decision"]["threshold"] == 0.5 and card["metrics"] == {"f1": 0.5}
-    with pytest.raises(ConfigError, match="events-only"):
-        export_restorer(src, tmp_path / "pkg2", has_frames=True)
+    with pytest.raises(ConfigError, match=r"image_channels.*'events' restorer.*exported as the 'frame' one"):
+        export_restorer(src, tmp_path / "pkg2", kind="frame")
+    with pytest.raises(ConfigError, match="kind"):
+        export_restorer(src, tmp_path / "pkg2", kind="image")
     # no study model in the working directory: the packaged model is used
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(learned, "_package_file", lambda name: tmp_path / "pkg" / f"{name}.pt"
