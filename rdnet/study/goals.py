@@ -8,16 +8,21 @@ Each goal is the issue's own definition and threshold:
 
 - on the simulated test split (degradation disjoint from training; also on the same windows
   with the events rendered by the independent circuit generator), for each trained stage 1
-  (RDNet's fine-tuned one, the image-guided one trained alone, the events-only one): event F1
+  (RDNet's fine-tuned one, the image-guided one trained alone, the events-only one, and the
+  frame-pair one when the metrics hold it: :data:`OPTIONAL_RESTORERS`): event F1
   above every baseline's (raw, BAF, STCF, GEF, the EDnCNN-style classifier), the voxel L1 over
   all voxels at least 30 % below raw's, the restored/undegraded count ratio within 0.85-1.15
   (definitions: ``rdnet.eval.events``);
-- on DAVIS346 (frames; the image-guided restorer, row ``rdnet`` of ``restore_real``): the
-  event-frame consistency of the restored stream at least raw's, its count within 0.5-2x raw;
+- on DAVIS346 (frames; the image-guided restorer, row ``rdnet`` of ``restore_real``, and the
+  frame-pair one, row ``rdnet_frames``, when present): the event-frame consistency of the
+  restored stream at least raw's, its count within 0.5-2x raw;
 - on the DVXplorer take (a still camera, events only; the events-only restorer): at least 75 %
   of the events in the activity mask kept, at most 15 % of the background and 5 % of the
   known hot pixels' events, and less background and hot-pixel events than BAF keeps, at the
   restorer's fitted decision.
+
+A goal reads "met" when every restorer scored meets it, else "not met" with the restorers
+that do meet it named.
 
 ``python stages/restoration_goals.py`` writes the table (stage ``restoration_goals``);
 ``--sync-readme`` copies it into README.md between :data:`GOALS_START` and :data:`GOALS_END`.
