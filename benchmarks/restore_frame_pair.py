@@ -74,46 +74,52 @@ def window_frames(pairs: Path, events_dir: Path, split: str) -> tuple[np.ndarray
     return np.stack(first), np.stack(last)
 
 
-def with_channel(src: Path, dst: Path, extra: np.ndarray) -> Path:
-    """A copy of the pairs file ``src`` whose ``blurry`` and ``sharp`` images carry ``extra``
-    (N, H, W) as a second channel (stage 1 reads ``blurry``; ``sharp`` only has to match)."""
+def copy_pairs(src: Path, dst: Path, replace) -> Path:
+    """A copy of the pairs file ``src`` (attributes and datasets) in which ``replace(f, name)``
+    gives each dataset's new content, or None to copy it as it is."""
     import h5py
 
     dst.parent.mkdir(parents=True, exist_ok=True)
     with h5py.File(src, "r") as f, h5py.File(dst, "w") as g:
         for k, v in f.attrs.items():
             g.attrs[k] = v
-        g.attrs["channels"] = 2
         for name in f:
-            if name in ("blurry", "sharp"):
-                g[name] = np.concatenate([f[name][...], extra[:, None].astype(np.float32)], axis=1)
-            else:
+            new = replace(f, name)
+            if new is None:
                 f.copy(name, g)
+            else:
+                g[name] = new
+    return dst
+
+
+def with_channel(src: Path, dst: Path, extra: np.ndarray) -> Path:
+    """A copy of the pairs file ``src`` whose ``blurry`` and ``sharp`` images carry ``extra``
+    (N, H, W) as a second channel (stage 1 reads ``blurry``; ``sharp`` only has to match)."""
+    import h5py
+    copy_pairs(src, dst, lambda f, name: np.concatenate([f[name][...], extra[:, None].astype(np.float32)], axis=1)
+               if name in ("blurry", "sharp") else None)
+    with h5py.File(dst, "a") as g:
+        g.attrs["channels"] = 2
     return dst
 
 
 def as_identity(src: Path, dst: Path) -> Path:
     """A copy of the pairs file ``src`` whose degraded voxels are its undegraded ones: a
     stream that needs no restoring (a restorer should hand it back as it is)."""
-    import h5py
+    return copy_pairs(src, dst, lambda f, name: f[name.replace("degraded", "undegraded", 1)][...]
+                      if name.startswith("voxel_degraded") else None)
 
-    with h5py.File(src, "r") as f, h5py.File(dst, "w") as g:
-        for k, v in f.attrs.items():
-            g.attrs[k] = v
-        for name in f:
-            if name.startswith("voxel_degraded"):
-                g[name] = f[name.replace("degraded", "undegraded", 1)][...]
-            else:
-                f.copy(name, g)
-    return dst
+
+def guide_of(params: dict):
+    """The frame-pair guide of the study's sensor (:class:`rdnet.nn.guide.FramePairGuide`):
+    its ``change`` is the second channel of ``pair``."""
+    from rdnet.nn.guide import FramePairGuide
+    return FramePairGuide(float(params["sensor"]["log_eps"]), float(params["sensor"]["threshold_on"]))
 
 
 def frame_change(pairs: Path, events_dir: Path, split: str, params: dict) -> np.ndarray:
     """``(log(I_last + eps) - log(I_first + eps)) / C`` of every row (module docstring)."""
-    s = params["sensor"]
-    first, last = window_frames(pairs, events_dir, split)
-    eps = np.float32(s["log_eps"])
-    return (np.log(last + eps) - np.log(first + eps)) / np.float32(s["threshold_on"])
+    return guide_of(params).change(*window_frames(pairs, events_dir, split))
 
 
 def bound_check(pairs: Path, change: np.ndarray) -> dict:
@@ -148,11 +154,10 @@ def real_streams(recording: Path, ckpts: dict[str, tuple[Path, str]], params: di
 
     rec = load_recording(recording)
     ev, frames = rec.events, rec.frames
-    s = params["sensor"]
     grey = frames.grey()
     t = frames.t_us.astype(np.int64)
     ks = list(range(0, len(t) - step, step))
-    eps = np.float32(s["log_eps"])
+    pair_guide = guide_of(params)
     streams = {"raw": ev.slice_time(int(t[ks[0]]), int(t[ks[-1] + step]))}
     for name, (path, guide) in ckpts.items():
         r = restorer_from_checkpoint(path, has_frames=True, params=params)
@@ -165,8 +170,7 @@ def real_streams(recording: Path, ckpts: dict[str, tuple[Path, str]], params: di
             elif guide == "library":
                 image = (grey[k], grey[k + step])
             else:
-                extra = ((np.log(grey[k + step] + eps) - np.log(grey[k] + eps)) / np.float32(s["threshold_on"])
-                         if guide == "pair" else np.zeros_like(grey[k]))
+                extra = pair_guide.change(grey[k], grey[k + step]) if guide == "pair" else np.zeros_like(grey[k])
                 image = np.stack([grey[k], extra])[None].astype(np.float32)
             parts.append(r.restore(ev, int(t[k]), int(t[k + step]), image))
         streams[name] = concatenate(parts, sort=True)

@@ -32,8 +32,9 @@ DELETIONS_ONLY = Run("rdnet_deletions_only", "rdnet", restore={"add_events": Fal
 #: event kept, restore.delete_events: false): the two rows split the learned restorer's effect.
 ADDITIONS_ONLY = Run("rdnet_additions_only", "rdnet", restore={"delete_events": False}, suffix=" (additions only)")
 #: On the recordings with frames: the restorer guided by the two frames that bracket each
-#: window (task restore_frames, its lowest seed; windows from frame to frame).
-FRAME_PAIRS = Run("rdnet_frames", "rdnet", checkpoint=Path("models/restore_frames"), needs_frames=True)
+#: window, as a user picks it (restore.guide: frame_pair: the study's models/restore_frames,
+#: its lowest seed; windows from frame to frame).
+FRAME_PAIRS = Run("rdnet_frames", "rdnet", restore={"guide": "frame_pair"}, needs_frames=True)
 
 
 def figure(path, name, raw, outs, act):

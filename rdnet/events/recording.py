@@ -8,6 +8,9 @@ import numpy as np
 from rdnet.errors import ValidationError
 from rdnet.events.core import Events
 
+#: ITU-R BT.601 luma weights of linear R, G, B: the luminance of colour frames
+LUMA_BT601 = np.array([0.299, 0.587, 0.114], np.float32)
+
 
 #: frame timestamps must stay below this in magnitude (2^52 us, the year 2112 as Unix time in
 #: microseconds). Frames at 2^53 us crashed the simulator (memory corruption in a compiled
@@ -97,7 +100,7 @@ class Frames:
         """(N, H, W) float32 linear luminance (ITU-R BT.601 weights for colour)."""
         lin = self.linear()
         if lin.ndim == 4:
-            return (lin @ np.array([0.299, 0.587, 0.114], np.float32)).astype(np.float32)
+            return (lin @ LUMA_BT601).astype(np.float32)
         return lin
 
     def exposure_window(self, i: int) -> tuple[int, int]:

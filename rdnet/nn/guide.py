@@ -22,9 +22,9 @@ from typing import Mapping
 import numpy as np
 
 from rdnet.errors import ValidationError
+from rdnet.events.recording import LUMA_BT601
 
 GUIDES = ("blurry", "frame_pair")
-_LUMA = np.array([0.299, 0.587, 0.114], np.float32)
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,13 @@ class FramePairGuide:
         if first.shape != last.shape or first.ndim != 3 or first.shape[0] not in (1, 3):
             raise ValidationError("frames", f"expected two (C, H, W) frames with C 1 or 3, got {first.shape} "
                                   f"and {last.shape}")
-        y0, y1 = ((f[0] if f.shape[0] == 1 else np.tensordot(_LUMA, f, axes=1)) for f in (first, last))
+        y0, y1 = ((f[0] if f.shape[0] == 1 else np.tensordot(LUMA_BT601, f, axes=1)) for f in (first, last))
+        return np.concatenate([first, self.change(y0, y1)[None]])
+
+    def change(self, first: np.ndarray, last: np.ndarray) -> np.ndarray:
+        """float32 ``(log(last + eps) - log(first + eps)) / threshold`` of two linear luminance
+        arrays of one shape (any: one frame, or a stack): the net ON-minus-OFF count of an
+        ideal pixel between them."""
         eps = np.float32(self.log_eps)
-        change = (np.log(y1 + eps) - np.log(y0 + eps)) / np.float32(self.threshold)
-        return np.concatenate([first, change[None].astype(np.float32)])
+        return ((np.log(np.asarray(last, np.float32) + eps) - np.log(np.asarray(first, np.float32) + eps))
+                / np.float32(self.threshold)).astype(np.float32)

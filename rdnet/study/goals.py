@@ -147,7 +147,9 @@ def real_rows(real: Mapping, source: str | Path | None = None) -> list[tuple[str
         c_raw = float(val("davis346_road", "methods", "raw", "consistency_r2"))
         n_raw = int(val("davis346_road", "events"))
         # the image-guided restorer, and the frame-pair one where restore_real ran it
-        runs = [("image-guided", "rdnet")] + [("frame-pair", "rdnet_frames")] * ("rdnet_frames" in recs["davis346_road"]["methods"])
+        runs = [("image-guided", "rdnet")]
+        if "rdnet_frames" in recs["davis346_road"]["methods"]:
+            runs.append(("frame-pair", "rdnet_frames"))
         c = [(n, float(val("davis346_road", "methods", k, "consistency_r2"))) for n, k in runs]
         out = [(n, int(val("davis346_road", "methods", k, "events_out"))) for n, k in runs]
         lo, hi = DAVIS_COUNT
