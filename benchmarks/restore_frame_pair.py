@@ -139,15 +139,16 @@ def bound_check(pairs: Path, change: np.ndarray) -> dict:
     return out
 
 
-def real_streams(recording: Path, ckpts: dict[str, tuple[Path, str]], params: dict, step: int) -> dict:
+def real_streams(recording: Path, ckpts: dict[str, tuple[Path, str]], params: dict, step: int, *,
+                 guide_threshold: float | None = None) -> dict:
     """Every restorer of ``ckpts`` (name: (checkpoint, guide)) on a recording with frames,
     in windows from frame ``k`` to frame ``k + step`` (``step`` 1: consecutive frames; 2:
     every other frame hidden from the restorers). ``guide``: ``frame`` (the window's first
     frame, as the study's restorer reads it), ``pair`` (that frame and the log change to
     the window's last frame over the nominal threshold), ``zeros`` (that frame and a
     channel of zeros) or ``library`` (a ``restore_frames`` checkpoint, handed the window's
-    two frames as ``rdnet restore`` hands them). Returns the streams, ``raw`` included (the events between the first
-    and the last frame used)."""
+    two frames as ``rdnet restore`` hands them; ``guide_threshold``: ``restore.guide_threshold``).
+    Returns the streams, ``raw`` included (the events between the first and the last frame used)."""
     from rdnet.events.core import concatenate
     from rdnet.events.io import load as load_recording
     from rdnet.restore.learned import restorer_from_checkpoint
@@ -160,7 +161,7 @@ def real_streams(recording: Path, ckpts: dict[str, tuple[Path, str]], params: di
     pair_guide = guide_of(params)
     streams = {"raw": ev.slice_time(int(t[ks[0]]), int(t[ks[-1] + step]))}
     for name, (path, guide) in ckpts.items():
-        r = restorer_from_checkpoint(path, has_frames=True, params=params)
+        r = restorer_from_checkpoint(path, has_frames=True, params=params, guide_threshold=guide_threshold)
         if guide not in ("frame", "library"):
             r._image = lambda frame, h, w: frame          # the two channels built below
         parts = []

@@ -3,9 +3,10 @@ study's sequences with the sensor + degradation that `rdnet calibrate` fitted to
 recording (--report; every fitted effect at --scale x its value), trains the image-guided count
 restorer on them as `train_restore` does (lowest seed of study.seeds) into --models, and
 compares it with the generic restorer (--generic) on the recording: events out, count ratio,
-ESR, event-frame consistency R^2 (raw; generic; camera; and each of them again with the
-fitted latency subtracted from the timestamps first, as `rdnet restore --calibration`), plus the event-level metrics of both
-restorers on the calibrated held-out sequences (in-domain check). Writes OUT/summary.json,
+ESR, event-frame consistency R^2 (raw; generic; camera; the study's frame-pair restorer (--frames),
+also with its guide at the fitted threshold; and each of them again with the fitted latency
+subtracted from the timestamps first, as `rdnet restore --calibration`), plus the event-level
+metrics of the generic and camera restorers on the calibrated held-out sequences (in-domain check). Writes OUT/summary.json,
 OUT/summary.md and OUT/summary.png; simulated data and restored streams go to --work
 (params: seed, randomize, blur, voxel, scenes.color, model, train, study.seeds, restore,
 sensor thresholds and log_eps, ablation.batch_size/device)."""
@@ -20,11 +21,15 @@ def main(args, params):
     sim = cl.simulate_calibrated(params, args.report, args.scenes, args.interp, args.work, scale=args.scale)
     train = cl.train_camera_restorer(params, args.work / "pairs" / "train.h5", args.models, timing=args.timing,
                                      progress=not args.no_progress)
+    from rdnet.restore.settings import calibrated_restore
+    from rdnet.study.config import calibrated_configs
     restorers = {"generic": args.generic, "camera": args.models}
+    fitted = calibrated_restore(*calibrated_configs(args.report))
     summary = {"simulation": sim,
                "training": {k: train[k] for k in ("task", "seeds", "parameters", "runs")},
-               "recording": cl.compare_on_recording(params, args.recording, restorers, args.work / "restored",
-                                                    latency_us=sim["degrade"]["latency_us"]),
+               "recording": cl.compare_on_recording(params, args.recording, {**restorers, "frames": args.frames},
+                                                    args.work / "restored", latency_us=fitted["latency_us"],
+                                                    guide_threshold=fitted["guide_threshold"]),
                "in_domain": cl.in_domain(params, args.work / "pairs" / "test.h5", args.work / "events" / "test",
                                          restorers)}
     for run in summary["training"]["runs"]:      # wall time goes to --timing only (reproducible summary)
@@ -43,6 +48,8 @@ p.add_argument("--scenes", type=Path, default=Path("data/scenes"))
 p.add_argument("--interp", type=Path, default=Path("data/interp"))
 p.add_argument("--recording", type=Path, default=Path("data/real/davis346_road/davis346.aedat4"))
 p.add_argument("--generic", type=Path, default=Path("models/restore_image"))
+p.add_argument("--frames", type=Path, default=Path("models/restore_frames"),
+               help="the frame-pair restorer (restore_frames), run on the recording only")
 p.add_argument("--scale", type=float, default=1.0, help="every fitted effect at this multiple of its value")
 p.add_argument("--work", type=Path, default=Path("data/closed_loop"))
 p.add_argument("--models", type=Path, default=Path("data/closed_loop/restore_davis346"))

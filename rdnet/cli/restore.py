@@ -32,7 +32,9 @@ def register(subparsers) -> None:
                         "method ednccn: default models/ednccn)")
     p.add_argument("--calibration", type=Path, default=None, metavar="REPORT",
                    help="an `rdnet calibrate` report.json of this camera: its fitted latency_us is "
-                        "undone first (sets restore.latency_us)")
+                        "undone first (sets restore.latency_us), and the frame-pair restorer's guide counts "
+                        "events at its fitted contrast threshold (sets restore.guide_threshold; with "
+                        "restore.guide auto, the default, a recording with frames then gets that restorer)")
     add_sensor_size_args(p)
     add_params_args(p)
     add_progress_arg(p)
@@ -44,11 +46,12 @@ def run(args) -> int:
 
     params = load_cli_params(args)
     if args.calibration is not None:
+        from rdnet.restore.settings import calibrated_restore
         from rdnet.study.config import calibrated_configs
         # refuses a FIFO or a folder before reading (a FIFO would block), names a missing file
-        _, degrade = calibrated_configs(args.calibration, "--calibration")
-        params = {**params, "restore": {**(params.get("restore") or {}), "latency_us": degrade.latency_us}}
-        section(params, "restore", f"{args.calibration} (its fitted latency_us, --calibration)")
+        sensor, degrade = calibrated_configs(args.calibration, "--calibration")
+        params = {**params, "restore": {**(params.get("restore") or {}), **calibrated_restore(sensor, degrade)}}
+        section(params, "restore", f"{args.calibration} (its fitted latency_us and thresholds, --calibration)")
     res = restore_recording(args.recording, args.out, params, method=args.method,
                             checkpoint=args.checkpoint, progress=args.progress,
                             sensor_size=sensor_size_of(args))
@@ -59,6 +62,11 @@ def run(args) -> int:
         return "n/a" if v is None else f"{v:.3f}"
     line = (f"{res['method']}: {res['events_in']} -> {res['events_out']} events "
             f"({'n/a' if kept is None else f'{100 * kept:.1f} %'} kept)")
+    guide = (res.get("model") or {}).get("guide")
+    if isinstance(guide, dict):          # a frame-pair restorer: which threshold its guide counts events at
+        trained = guide["threshold_trained"]
+        line += f"; guide threshold {guide['threshold']:.3g}" + (
+            "" if guide["threshold"] == trained else f" (trained {trained:.3g})")
     if esr is not None:
         line += f"; ESR (higher = more structure) raw {fmt(esr['raw'])}, restored {fmt(esr['restored'])}"
     cons = res["scores"]["consistency"]

@@ -167,4 +167,5 @@ def get_restorer(method: str, params: Mapping, checkpoint=None, *, has_frames: b
                                             "(rdnet.restore.learned is missing); use baf, stcf or gef") from None
     return load_restorer(checkpoint, has_frames=has_frames, params=dict(params), device=cfg.device,
                          event_times=cfg.event_times, add_events=cfg.add_events,
-                         delete_events=cfg.delete_events, guide=cfg.guide)
+                         delete_events=cfg.delete_events, guide=cfg.guide,
+                         guide_threshold=cfg.guide_threshold)

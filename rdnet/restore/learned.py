@@ -17,8 +17,9 @@ lowest ``k`` first); the study's trained restorers as ``dvc repro`` writes them
 (:data:`STUDY_MODELS`, relative to the working directory); the small exported copies
 shipped as package data (``rdnet/restore/models/<name>.pt``). Without a checkpoint the kind
 follows the recording and ``restore.guide``: on a recording with frames the blurry-frame
-restorer (``frame``, the default) or the frame-pair one (``frame_pair``), falling back to
-the events-only one when neither is found; without frames the events-only one. It logs
+restorer (``frame``) or the frame-pair one (``frame_pair``; ``auto``, the default, picks it
+when the camera's threshold is known, ``restore.guide_threshold``), falling back to the
+events-only one when neither is found; without frames the events-only one. It logs
 which one it uses. Every checkpoint is validated (kind, voxel bins, frames): a mismatch is a
 ConfigError naming the file and the field.
 
@@ -82,6 +83,7 @@ for the settings, ``restore_learned_speed_ab_gated_workers.json`` against the pr
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import json
 import logging
@@ -223,6 +225,9 @@ class LearnedRestorer:
     #: the frame-pair guide (:class:`rdnet.nn.guide.FramePairGuide`) of a ``restore_frames``
     #: network; None for the blurry-frame and events-only ones
     guide: object = None
+    #: the contrast threshold the frame-pair network was trained with when ``guide`` holds
+    #: another one (``restore.guide_threshold``); None when it is the checkpoint's own
+    trained_threshold: float | None = None
 
     @property
     def frame_pairs(self) -> bool:
@@ -295,7 +300,9 @@ class LearnedRestorer:
         sup = d.get("support") or {}
         return {"kind": "learned", "source": self.source, "output": self.output,
                 "image_guided": bool(self.needs_frames),
-                "guide": None if not self.needs_frames else "frame" if self.guide is None else self.guide.to_dict(),
+                "guide": None if not self.needs_frames else "frame" if self.guide is None else
+                {**self.guide.to_dict(), "threshold_trained": self.guide.threshold if self.trained_threshold is None
+                 else self.trained_threshold},
                 "window_us": "frame intervals" if self.frame_pairs else self.window_us,
                 "event_times": self.times, "add_events": self.add_events,
                 "delete_events": self.delete_events,
@@ -394,10 +401,12 @@ def _fail(path: Path, field: str, msg: str) -> ConfigError:
 def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapping | None = None,
                              device: str = "cpu", source: str | None = None,
                              event_times: str = "input", add_events: bool = True,
-                             delete_events: bool = True) -> LearnedRestorer:
+                             delete_events: bool = True, guide_threshold: float | None = None) -> LearnedRestorer:
     """A :class:`LearnedRestorer` from one checkpoint file, validated (module docstring).
     ``event_times``: ``restore.event_times`` (input or bins); ``add_events``,
-    ``delete_events``: ``restore.add_events``, ``restore.delete_events``."""
+    ``delete_events``: ``restore.add_events``, ``restore.delete_events``;
+    ``guide_threshold``: ``restore.guide_threshold`` (a frame-pair network's guide divides
+    by it instead of the threshold it was trained with; other networks ignore it)."""
     from rdnet.restore.settings import EVENT_TIMES
     if event_times not in EVENT_TIMES:
         raise ConfigError("restore.event_times", f"must be one of {list(EVENT_TIMES)}, got {event_times!r}")
@@ -443,6 +452,12 @@ def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapp
     except ValidationError as e:
         raise _fail(path, "extra.guide", str(e)) from None
     name = "rdnet-events" if not image_channels else "rdnet-image" if guide is None else "rdnet-frames"
+    trained_threshold = None
+    if guide is not None and guide_threshold is not None and float(guide_threshold) != guide.threshold:
+        trained_threshold = guide.threshold
+        guide = dataclasses.replace(guide, threshold=float(guide_threshold))
+        log.info("%s: the frame-pair guide divides by the camera's threshold %g (restore.guide_threshold), "
+                 "not the %g it was trained with", path, guide.threshold, trained_threshold)
     mode = str(voxel.get("mode") or "hard")
     for key, on, what in (("add_events", add_events, "caps each voxel at"),
                           ("delete_events", delete_events, "raises each voxel to at least")):
@@ -457,18 +472,22 @@ def restorer_from_checkpoint(path: str | Path, *, has_frames: bool, params: Mapp
                            window_us=None if window is None else int(window), net=net, decision=decision,
                            bins=bins, mode=mode, source=source or str(path),
                            device=str(device), channels_last=channels_last, event_times=event_times,
-                           add_events=bool(add_events), delete_events=bool(delete_events), guide=guide)
+                           add_events=bool(add_events), delete_events=bool(delete_events), guide=guide,
+                           trained_threshold=trained_threshold)
 
 
 def load_restorer(checkpoint: str | Path | None, *, has_frames: bool, params: Mapping,
                   device: str = "cpu", event_times: str = "input", add_events: bool = True,
-                  delete_events: bool = True, guide: str = "frame") -> LearnedRestorer:
+                  delete_events: bool = True, guide: str = "auto",
+                  guide_threshold: float | None = None) -> LearnedRestorer:
     """The learned restorer to use (module docstring for the search order). ``device``: cpu,
     cuda or auto (cuda when available); ``event_times``, ``add_events``, ``delete_events``,
-    ``guide``: ``restore.event_times``, ``restore.add_events``, ``restore.delete_events``,
-    ``restore.guide`` (which study or packaged restorer a recording with frames gets; a
-    ``checkpoint`` brings its own guide)."""
-    kw = {"event_times": event_times, "add_events": add_events, "delete_events": delete_events}
+    ``guide``, ``guide_threshold``: ``restore.event_times``, ``restore.add_events``,
+    ``restore.delete_events``, ``restore.guide`` (which study or packaged restorer a
+    recording with frames gets, ``auto``: the frame-pair one when ``guide_threshold`` is
+    given; a ``checkpoint`` brings its own guide), ``restore.guide_threshold``."""
+    kw = {"event_times": event_times, "add_events": add_events, "delete_events": delete_events,
+          "guide_threshold": guide_threshold}
     from rdnet.train.loop import resolve_device
     device = str(resolve_device(str(device), key="restore.device"))
     if checkpoint is not None:
@@ -479,8 +498,13 @@ def load_restorer(checkpoint: str | Path | None, *, has_frames: bool, params: Ma
         r = restorer_from_checkpoint(f, has_frames=has_frames, params=params, device=device, **kw)
         log.info("restorer %s from %s", r.name, f)
         return r
-    if guide not in KINDS[:2]:
-        raise ConfigError("restore.guide", f"must be one of {list(KINDS[:2])}, got {guide!r}")
+    if guide not in ("auto",) + KINDS[:2]:
+        raise ConfigError("restore.guide", f"must be one of {['auto', *KINDS[:2]]}, got {guide!r}")
+    if guide == "auto":        # the frame-pair guide needs the camera's threshold to count its events
+        guide = "frame_pair" if guide_threshold is not None else "frame"
+        if has_frames:
+            log.info("restore.guide auto: %s (%s)", guide, "the camera's threshold is known (restore.guide_threshold)"
+                     if guide_threshold is not None else "no camera threshold: restore.guide_threshold unset")
     # the guided restorer asked for when the recording has frames; events-only otherwise (or as fallback)
     kinds = (guide, "events") if has_frames else ("events",)
     for kind in kinds:

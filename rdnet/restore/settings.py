@@ -8,12 +8,13 @@ from typing import Literal
 
 from rdnet.config import MAX_RATE_HZ, MAX_SEED, MAX_THREADS, ONE_HOUR_US, check_bounds, positive
 from rdnet.errors import ConfigError
+from rdnet.sim.settings import SENSOR_LOWER_BOUNDS, SENSOR_UPPER_BOUNDS
 
 METHODS = ("rdnet", "baf", "stcf", "gef", "raw", "ednccn")
 #: how a learned restorer's voxel counts become events (``RestoreConfig.event_times``)
 EVENT_TIMES = ("input", "bins")
 #: what guides the learned restorer on a recording with frames (``RestoreConfig.guide``)
-GUIDES = ("frame", "frame_pair")
+GUIDES = ("auto", "frame", "frame_pair")
 
 #: bounds of the ``restore`` keys (checked by :func:`rdnet.config.check_bounds`; the filter
 #: keys are shared with ``ablation.filters``, and ``stcf_k`` is bounded by ``stcf_radius``:
@@ -36,7 +37,9 @@ RESTORE_UPPER_BOUNDS = {
     "score_max_events": 1e12,
     # a pixel a million times its neighbours' median count; a rate as the simulator's
     "hot_pixel_factor": 1e6, "hot_pixel_min_hz": MAX_RATE_HZ,
-    "workers": MAX_THREADS}
+    "workers": MAX_THREADS,
+    # a contrast threshold in log units, bounded as the sensor's (rdnet.sim.settings)
+    "guide_threshold": SENSOR_UPPER_BOUNDS["threshold_on"]}
 
 
 def check_stcf_k(key: str, k: int, radius: int) -> None:
@@ -45,6 +48,15 @@ def check_stcf_k(key: str, k: int, radius: int) -> None:
     most = (2 * radius + 1) ** 2 - 1
     if k > most:
         raise ConfigError(key, f"must be at most {most} (the pixels within radius {radius} of an event), got {k}")
+
+
+def calibrated_restore(sensor, degrade) -> dict:
+    """The ``restore`` keys that ``rdnet restore --calibration REPORT`` sets from the sensor
+    and degradation ``rdnet calibrate`` fitted (:func:`rdnet.study.config.calibrated_configs`):
+    ``latency_us``, and ``guide_threshold``, the mean of the fitted ON and OFF thresholds
+    (the frame-pair guide divides by one threshold)."""
+    return {"latency_us": float(degrade.latency_us),
+            "guide_threshold": 0.5 * (float(sensor.threshold_on) + float(sensor.threshold_off))}
 
 
 @dataclass(frozen=True)
@@ -93,10 +105,20 @@ class RestoreConfig:
     it is (``method: raw``) and is refused.
     ``guide``: which trained restorer ``method: rdnet`` uses on a recording with frames when
     no checkpoint is given: ``frame`` (the frame nearest each window, the study's
-    ``models/restore_image``) or ``frame_pair`` (the two frames bracketing each window, the
+    ``models/restore_image``), ``frame_pair`` (the two frames bracketing each window, the
     study's ``models/restore_frames``: windows from frame to frame; docs/restoration.md,
-    "The frames bracketing the window"); a recording without frames gets the events-only
-    restorer either way."""
+    "The frames bracketing the window") or ``auto`` (the default: ``frame_pair`` when the
+    camera's threshold is known, ``guide_threshold`` set or ``rdnet restore --calibration``
+    given, else ``frame``); a recording without frames gets the events-only restorer either
+    way.
+    ``guide_threshold``: the camera's contrast threshold (log units) that a frame-pair
+    restorer divides the frames' log change by, so that its guide counts the events this
+    camera fires; null: the threshold the network was trained with (the simulator's
+    ``sensor.threshold_on``, stored in its checkpoint). ``rdnet restore --calibration
+    REPORT`` sets it to the thresholds ``rdnet calibrate`` fitted (their mean). On the
+    DAVIS346 take (fitted 0.41 against the study's 0.2) the simulator's value made two of
+    three seeds add a quarter of their output (docs/restoration.md, "The guide's
+    threshold"). The other restorers ignore it."""
 
     method: Literal["rdnet", "baf", "stcf", "gef", "raw", "ednccn"] = "rdnet"
     window_us: int = 50_000
@@ -122,7 +144,8 @@ class RestoreConfig:
     event_times: Literal["input", "bins"] = "input"
     add_events: bool = True
     delete_events: bool = True
-    guide: Literal["frame", "frame_pair"] = "frame"
+    guide: Literal["auto", "frame", "frame_pair"] = "auto"
+    guide_threshold: float | None = None
 
     def __post_init__(self):
         for key in ("window_us", "chunk_events", "baf_dt_us", "stcf_tau_us", "stcf_k", "stcf_radius",
@@ -137,7 +160,10 @@ class RestoreConfig:
                                                          f"its neighbours' median), got {self.hot_pixel_factor}")
         positive("restore.hot_pixel_min_hz", self.hot_pixel_min_hz)
         positive("restore.latency_us", self.latency_us)
-        check_bounds("restore", self, RESTORE_UPPER_BOUNDS)
+        if self.guide_threshold is not None:
+            positive("restore.guide_threshold", self.guide_threshold, allow_zero=False)
+        check_bounds("restore", self, RESTORE_UPPER_BOUNDS,
+                     {"guide_threshold": SENSOR_LOWER_BOUNDS["threshold_on"]})
         check_stcf_k("restore.stcf_k", self.stcf_k, self.stcf_radius)
         if self.method not in METHODS:
             raise ConfigError("restore.method", f"must be one of {list(METHODS)}, got {self.method!r}")

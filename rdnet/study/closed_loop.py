@@ -31,10 +31,13 @@ log = logging.getLogger(__name__)
 #: the rows of the comparison on the real recording, in table order (``latency_corrected``:
 #: the raw events with the fitted latency subtracted from their timestamps, when the
 #: calibration fitted one -- the calibration's own correction, nothing learned;
-#: ``<restorer>_latency``: that restorer on the corrected events).
-ROWS = ("raw", "latency_corrected", "generic", "generic_latency", "camera", "camera_latency")
+#: ``<restorer>_latency``: that restorer on the corrected events; ``frames``: the study's
+#: frame-pair restorer, ``frames_threshold``: the same with its guide at the fitted
+#: threshold, ``frames_threshold_latency`` = ``rdnet restore --calibration`` with it).
+ROWS = ("raw", "latency_corrected", "generic", "generic_latency", "camera", "camera_latency",
+        "frames", "frames_latency", "frames_threshold", "frames_threshold_latency")
 #: what each row reports (summary.json ``recording.rows.<row>``).
-ROW_KEYS = ("method", "checkpoint", "events_out", "count_ratio", "esr", "consistency_r2")
+ROW_KEYS = ("method", "checkpoint", "events_out", "count_ratio", "not_recorded", "esr", "consistency_r2")
 
 
 def calibrated_params(params: Mapping, report: str | Path) -> dict:
@@ -88,18 +91,25 @@ def _row(res: dict) -> dict:
     n_in = res["events_in"]
     return {"method": res["method"], "checkpoint": res["checkpoint"], "events_out": res["events_out"],
             "count_ratio": res["events_out"] / n_in if n_in else None,
+            # the share of the output that is not a recorded event (added by the restorer)
+            "not_recorded": res["events_not_recorded"] / res["events_out"] if res["events_out"] else None,
             "esr": esr.get("restored"), "consistency_r2": cons.get("r2_fitted")}
 
 
 def compare_on_recording(params: Mapping, recording: Path, restorers: Mapping[str, Path], data_out: Path, *,
-                         latency_us: float = 0.0, progress: bool = False) -> dict:
+                         latency_us: float = 0.0, guide_threshold: float | None = None,
+                         progress: bool = False) -> dict:
     """``rdnet restore`` of ``recording`` unchanged (row ``raw``) and with each learned
     restorer of ``restorers`` (row name -> checkpoint: a ``model.pt`` or a network folder,
     its lowest seed); when ``latency_us`` > 0, each of them again with that latency undone
     first (``restore.latency_us``, as ``rdnet restore --calibration``): rows
     ``latency_corrected`` (the raw events shifted) and ``<name>_latency``. The restored
-    streams go to ``data_out/<row>.h5``. Returns ``events_in`` and ``rows``
-    (:data:`ROW_KEYS` per row; ``count_ratio`` = events out / events in)."""
+    streams go to ``data_out/<row>.h5``. ``guide_threshold``: the calibrated contrast
+    threshold; each frame-pair restorer of ``restorers`` then runs again with its guide at
+    it (``restore.guide_threshold``, as ``rdnet restore --calibration``): rows
+    ``<name>_threshold`` (and ``<name>_threshold_latency``). Returns ``events_in``,
+    ``guide_threshold`` and ``rows`` (:data:`ROW_KEYS` per row; ``count_ratio`` = events out
+    / events in)."""
     from rdnet.restore.run import restore_recording
     data_out = Path(data_out)
     data_out.mkdir(parents=True, exist_ok=True)
@@ -115,12 +125,20 @@ def compare_on_recording(params: Mapping, recording: Path, restorers: Mapping[st
         raw = raw or res
         rows[name] = {**_row(res), "method": "raw" if not suffix else f"raw - {int(round(lat))} us"}
         for rname, ck in restorers.items():
-            res = restore_recording(recording, data_out / f"{rname}{suffix}.h5", p, method="rdnet", checkpoint=ck,
-                                    progress=progress)
-            rows[rname + suffix] = {**_row(res), "method": _row(res)["method"] + (f" - {int(round(lat))} us"
-                                                                                 if suffix else "")}
+            runs = [("", p)]              # and again at the fitted threshold, for a frame-pair guide
+            for infix, q in runs:
+                res = restore_recording(recording, data_out / f"{rname}{infix}{suffix}.h5", q, method="rdnet",
+                                        checkpoint=ck, progress=progress)
+                guide = res["model"].get("guide")
+                if guide_threshold is not None and not infix and isinstance(guide, dict):
+                    runs.append(("_threshold", {**q, "restore": {**q["restore"],
+                                                                 "guide_threshold": float(guide_threshold)}}))
+                what = (f" guide at {guide['threshold']:.3g}" if infix else "") + (
+                    f" - {int(round(lat))} us" if suffix else "")
+                rows[rname + infix + suffix] = {**_row(res), "method": _row(res)["method"] + what}
     return {"recording": str(recording), "events_in": raw["events_in"], "duration_us": raw["duration_us"],
-            "has_frames": raw["has_frames"], "latency_us": float(latency_us), "rows": rows}
+            "has_frames": raw["has_frames"], "latency_us": float(latency_us),
+            "guide_threshold": None if guide_threshold is None else float(guide_threshold), "rows": rows}
 
 
 def in_domain(params: Mapping, pairs: Path, events_dir: Path, restorers: Mapping[str, Path]) -> dict:
@@ -142,6 +160,10 @@ def _fmt(v, spec=".3f"):
     return "-" if v is None else format(v, spec)
 
 
+def _pct(v) -> str:
+    return "-" if v is None else f"{100 * v:.1f} %"
+
+
 def _ordered(rows: Mapping) -> list:
     """Row names in :data:`ROWS` order, others after (summary.json stores sorted keys)."""
     return [n for n in ROWS if n in rows] + sorted(n for n in rows if n not in ROWS)
@@ -155,15 +177,21 @@ def summary_markdown(summary: Mapping) -> str:
         note = (f"; `latency_corrected`: the raw events with the fitted latency ({rec['latency_us'] / 1e3:.2f} ms) "
                 "subtracted from their timestamps (`rdnet restore --calibration`), `*_latency`: the "
                 "restorer on those")
+    if rec.get("guide_threshold") is not None:
+        note += (f"; `frames`: the study's frame-pair restorer, its guide at the trained threshold, "
+                 f"`frames_threshold`: at the fitted {rec['guide_threshold']:.3g} (`restore.guide_threshold`; "
+                 "with the latency undone: `rdnet restore --calibration`); not recorded: the share of the "
+                 "output that is not a recorded event")
     lines = [f"Closed loop on `{rec['recording']}` ({rec['events_in']:,} raw events): "
              "the generic restorer (`generic`) against the one trained on the "
              f"calibrated degradation (`camera`){note}.", "",
-             "| row | method | checkpoint | events out | count ratio | ESR | consistency R^2 |",
-             "|---|---|---|---|---|---|---|"]
+             "| row | method | checkpoint | events out | count ratio | not recorded | ESR | consistency R^2 |",
+             "|---|---|---|---|---|---|---|---|"]
     for name in _ordered(rec["rows"]):
         r = rec["rows"][name]
         lines.append(f"| {name} | {r['method']} | {r['checkpoint'] or '-'} | {r['events_out']:,} | "
-                     f"{_fmt(r['count_ratio'], '.3f')}x | {_fmt(r['esr'])} | {_fmt(r['consistency_r2'])} |")
+                     f"{_fmt(r['count_ratio'], '.3f')}x | {_pct(r.get('not_recorded'))} | {_fmt(r['esr'])} | "
+                     f"{_fmt(r['consistency_r2'])} |")
     dom = summary.get("in_domain")
     if dom:
         lines += ["", "In-domain check: the calibrated-degradation held-out (test) sequences, event-level "
@@ -188,14 +216,18 @@ def summary_figure(summary: Mapping, path: Path) -> Path:
                                        ("count_ratio", "events out / raw"), ("esr", "ESR"))):
         vals = [rows[n][key] if rows[n][key] is not None else float("nan") for n in names]
         colors = {"raw": "0.6", "latency_corrected": "0.35", "generic": "tab:blue", "camera": "tab:orange",
-                  "generic_latency": "tab:cyan", "camera_latency": "tab:red"}
+                  "generic_latency": "tab:cyan", "camera_latency": "tab:red", "frames": "tab:green",
+                  "frames_latency": "yellowgreen", "frames_threshold": "tab:purple",
+                  "frames_threshold_latency": "orchid"}
         ax.bar([n.replace("latency_corrected", "raw-latency") for n in names], vals,
-               color=[colors.get(n, "tab:green") for n in names])
+               color=[colors.get(n, "tab:brown") for n in names])
         for i, v in enumerate(vals):
-            ax.text(i, v, f"{v:.3f}", ha="center", va="bottom", fontsize=7)
+            ax.text(i, v, format(v, ".2f" if key == "count_ratio" else ".3f"), ha="center", va="bottom",
+                    fontsize=6)
         ax.set_title(title, fontsize=9)
         ax.tick_params(labelsize=7)
+        ax.tick_params(axis="x", labelrotation=60, labelsize=6)
         ax.set_ylim(0, 1.12 * max([v for v in vals if v == v] or [1.0]))
-    fig.suptitle(f"{Path(summary['recording']['recording']).name}: generic vs camera-specific restorer",
+    fig.suptitle(f"{Path(summary['recording']['recording']).name}: generic, camera-specific and frame-pair restorers",
                  fontsize=9, y=1.02)
     return _save_figure(fig, path)

@@ -175,7 +175,8 @@ def test_rdnet_restore_cuts_windows_at_the_frames(tmp_path):
 
 def test_restore_guide_picks_the_frame_pair_restorer_for_recordings_with_frames(tmp_path, monkeypatch):
     """restore.guide (no --checkpoint): frame_pair takes the study's models/restore_frames on a
-    recording with frames, the events-only restorer without frames; a bad value names the key."""
+    recording with frames, the events-only restorer without frames; auto takes it when
+    restore.guide_threshold is set, the blurry-frame one otherwise; a bad value names the key."""
     from rdnet.restore import learned
     from rdnet.restore.base import get_restorer
     from rdnet.restore.learned import export_restorer
@@ -187,8 +188,14 @@ def test_restore_guide_picks_the_frame_pair_restorer_for_recordings_with_frames(
                                 or tmp_path / "models" / "restore_frames" / "seed0" / "model.pt")
     r = get_restorer("rdnet", {**params, "restore": {"guide": "frame_pair"}}, None, has_frames=True)
     assert r.name == "rdnet-frames" and r.source.startswith("study model models/restore_frames")
-    with pytest.raises(ModelNotFoundError, match="restore_image"):   # frame: the blurry-frame model, absent here
+    with pytest.raises(ModelNotFoundError, match="restore_image"):   # auto, no threshold: the blurry-frame model
         get_restorer("rdnet", params, None, has_frames=True)
+    with pytest.raises(ModelNotFoundError, match="restore_image"):   # frame: the same, absent here
+        get_restorer("rdnet", {**params, "restore": {"guide": "frame", "guide_threshold": 0.4}}, None,
+                     has_frames=True)
+    # auto with the camera's threshold known (as --calibration sets it): the frame-pair one at that threshold
+    r = get_restorer("rdnet", {**params, "restore": {"guide_threshold": 0.4}}, None, has_frames=True)
+    assert r.name == "rdnet-frames" and r.guide.threshold == 0.4 and r.trained_threshold == 0.2
     with pytest.raises(ModelNotFoundError, match="restore_events"):  # no frames: events-only, absent here
         get_restorer("rdnet", {**params, "restore": {"guide": "frame_pair"}}, None, has_frames=False)
     with pytest.raises(ConfigError, match="restore.guide"):
@@ -197,3 +204,32 @@ def test_restore_guide_picks_the_frame_pair_restorer_for_recordings_with_frames(
     assert out.name == "restore_frames.pt"
     with pytest.raises(ConfigError, match="extra.guide"):
         export_restorer(tmp_path / "models" / "restore_frames", tmp_path / "pkg", kind="frame")
+
+
+def test_guide_threshold_sets_the_cameras_threshold_and_calibration_sets_the_fitted_one(tmp_path):
+    """restore.guide_threshold replaces the threshold a frame-pair guide divides by (the change
+    channel scales by trained / camera threshold, the frame channel stays); OUT.json says both;
+    the blurry-frame and events-only restorers ignore it; --calibration sets the mean of the
+    fitted ON and OFF thresholds."""
+    from rdnet.restore.settings import RestoreConfig, calibrated_restore
+    from rdnet.sim.settings import DegradeConfig, SensorConfig
+    params = {"voxel": {"bins": 3, "mode": "hard", "normalize": None}}
+    path = _identity_frames_checkpoint(tmp_path / "f.pt")
+    trained = load_restorer(path, has_frames=True, params=params)
+    camera = load_restorer(path, has_frames=True, params=params, guide_threshold=0.5)
+    assert trained.guide.threshold == 0.2 and camera.guide.threshold == 0.5
+    assert camera.info["guide"] == {**GUIDE.to_dict(), "threshold": 0.5, "threshold_trained": 0.2}
+    assert trained.info["guide"]["threshold_trained"] == 0.2
+    rng = np.random.default_rng(3)
+    f0, f1 = (rng.integers(10, 250, (H, W)).astype(np.uint8) for _ in range(2))
+    a, b = trained._image((f0, f1), H, W), camera._image((f0, f1), H, W)
+    np.testing.assert_array_equal(a[0, 0], b[0, 0])
+    np.testing.assert_allclose(b[0, 1], a[0, 1] * 0.2 / 0.5, rtol=1e-5, atol=1e-6)
+    assert np.abs(a[0, 1]).max() > 1              # the frames do change
+    same = load_restorer(path, has_frames=True, params=params, guide_threshold=0.2)
+    assert same.trained_threshold is None and same.info["guide"]["threshold"] == 0.2
+    for bad in (0.0, -0.3, 1e-4, 20.0):
+        with pytest.raises(ConfigError, match="restore.guide_threshold"):
+            RestoreConfig(guide_threshold=bad)
+    fitted = calibrated_restore(SensorConfig(threshold_on=0.4, threshold_off=0.3), DegradeConfig(latency_us=7000.0))
+    assert fitted == {"latency_us": 7000.0, "guide_threshold": pytest.approx(0.35)}

@@ -347,7 +347,8 @@ def test_restorer_contract(method, sets):
 def test_latency_from_a_calibration_report_is_undone_first(tmp_path, capsys):
     ev = _write(tmp_path / "in.h5")
     report = tmp_path / "report.json"
-    report.write_text(json.dumps({"fitted_config": {"sensor": {}, "degrade": {"latency_us": 2500.4}}}))
+    report.write_text(json.dumps({"fitted_config": {"sensor": {"threshold_on": 0.3, "threshold_off": 0.5},
+                                                    "degrade": {"latency_us": 2500.4}}}))
     out = tmp_path / "out.h5"
     assert main(["restore", str(tmp_path / "in.h5"), str(out), "--method", "raw", "--no-progress",
                  "--calibration", str(report), "--set", "restore.window_us=7000"]) == 0
@@ -358,6 +359,7 @@ def test_latency_from_a_calibration_report_is_undone_first(tmp_path, capsys):
     np.testing.assert_array_equal(got.x, ev.x[keep])
     info = json.loads(out.with_suffix(".json").read_text())
     assert info["settings"]["latency_us"] == 2500.4
+    assert info["settings"]["guide_threshold"] == pytest.approx(0.4)     # the fitted thresholds' mean
     # same with the key set directly, and the BAF result is the one of the shifted stream
     out2 = tmp_path / "out2.h5"
     assert main(["restore", str(tmp_path / "in.h5"), str(out2), "--method", "baf", "--no-progress",

@@ -97,6 +97,27 @@ def test_compare_on_recording_raw_row_is_the_recording(params, tmp_path, make_re
     assert gen["events_out"] == len(read_events(tmp_path / "out" / "generic.h5"))
     assert raw["esr"] is not None and raw["consistency_r2"] is not None
     md = CL.summary_markdown({"recording": res})
-    assert md.count("\n| raw | raw | - | 3,000 | 1.000x |") == 1 and "| generic | rdnet-image |" in md
+    assert md.count("\n| raw | raw | - | 3,000 | 1.000x | 0.0 % |") == 1 and "| generic | rdnet-image |" in md
+    assert raw["not_recorded"] == 0.0 and 0.0 <= gen["not_recorded"] <= 1.0
     assert "| latency_corrected | raw - 2500 us |" in md and "(2.50 ms)" in md
     assert CL.summary_figure({"recording": res}, tmp_path / "s.png").stat().st_size > 0
+
+
+def test_frame_pair_restorer_runs_again_with_its_guide_at_the_fitted_threshold(params, tmp_path, make_recording):
+    rec = make_recording(n_events=2000, n_frames=5, width=32, height=24)
+    write_recording(tmp_path / "r.h5", rec)
+    frames = ROOT / "rdnet" / "restore" / "models" / "restore_frames.pt"
+    res = CL.compare_on_recording(params, tmp_path / "r.h5", {"generic": PACKAGE_IMAGE, "frames": frames},
+                                  tmp_path / "out", latency_us=1000.0, guide_threshold=0.4)
+    # only the frame-pair restorer has a guide threshold to set
+    assert set(res["rows"]) == {"raw", "latency_corrected", "generic", "generic_latency", "frames", "frames_latency",
+                                "frames_threshold", "frames_threshold_latency"}
+    assert res["guide_threshold"] == 0.4
+    assert res["rows"]["frames"]["method"] == "rdnet-frames"
+    assert res["rows"]["frames_threshold"]["method"] == "rdnet-frames guide at 0.4"
+    assert res["rows"]["frames_threshold_latency"]["method"] == "rdnet-frames guide at 0.4 - 1000 us"
+    for name in ("frames", "frames_threshold", "frames_threshold_latency"):
+        assert res["rows"][name]["events_out"] == len(read_events(tmp_path / "out" / f"{name}.h5"))
+    md = CL.summary_markdown({"recording": res})
+    assert "| frames_threshold | rdnet-frames guide at 0.4 |" in md
+    assert "`frames_threshold`: at the fitted 0.4" in md

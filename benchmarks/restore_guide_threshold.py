@@ -1,0 +1,163 @@
+"""Which threshold should the frame-pair guide divide by? (issue 11, the frame-pair restorer)
+
+The frame-pair restorer (``models/restore_frames``, :mod:`rdnet.nn.guide`) reads the log
+change between the two frames that bracket its window in units of a contrast threshold:
+the net event count an ideal pixel of that threshold fires. The study trains it at the
+simulator's ``sensor.threshold_on`` (0.2). A camera whose threshold is larger fires fewer
+events for the same change, so at 0.2 the guide asks for events that camera would never
+have fired; ``restore.guide_threshold`` (set by ``rdnet restore --calibration``) gives the
+guide the camera's threshold instead. Two checks, neither with rdnet's simulator as truth:
+
+1. **Independent generator, known threshold.** The study's test sequences rendered by the
+   circuit generator (:mod:`rdnet.circuit`, one draw, as ``restoration_circuit``) with the
+   sensor's thresholds set to ``theta`` (0.2, 0.3, 0.4); the truth is that generator's
+   undegraded events at ``theta``. Each seed of the study's frame-pair restorer runs with
+   the guide at the trained 0.2 and at ``theta``; event precision / recall / F1, count ratio
+   and signed-voxel L1 as ``restore_learned_eval.pair_metrics``.
+2. **The DAVIS346 recording** (real frames and events, no ground truth): the restorer with
+   the guide at the trained 0.2, at the threshold the recording's own events and frames give
+   by least squares (``threshold_on_fitted`` of :func:`rdnet.deblur.consistency.compare_consistency`
+   on the raw stream), and at the one ``rdnet calibrate`` fitted
+   (``results/calibration/davis346/report.json``), in windows between consecutive frames
+   and with every other frame hidden (``restore_frame_pair.real_streams`` / ``real_scores``):
+   events out / raw, event-frame consistency, and the share of output events that are not
+   recorded events (added).
+
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/restore_guide_threshold.py   # needs dvc repro
+        writes benchmarks/results/restore_guide_threshold.{json,md}
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import logging
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+METRICS = ("precision", "recall", "f1", "count_ratio", "l1_all", "l1_events")
+log = logging.getLogger("restore_guide_threshold")
+
+
+def circuit_rows(params: dict, thetas, seeds, work: Path) -> dict:
+    """Part 1 (module docstring): ``{theta: {row: metrics}}``."""
+    import torch
+    from restore_learned_eval import pair_metrics
+
+    from rdnet.eval.predict import checkpoint_guide
+    from rdnet.nn.decision import decide_counts, decision_gain, support_applies
+    from rdnet.study.data import sequences
+    from rdnet.study.independent import circuit_pairs
+    from rdnet.train import checkpoint as ckpt_mod
+    from rdnet.train.data import PairsDataset
+    from rdnet.train.loop import predict_counts
+
+    files = sequences(ROOT / "data" / "events", "test")
+    out = {}
+    for theta in thetas:
+        p = copy.deepcopy(params)
+        p["sensor"] = {**p["sensor"], "threshold_on": theta, "threshold_off": theta}
+        pairs, _ = circuit_pairs(p, files, work / f"theta{theta}", 0)
+        rows = {}
+        for s in seeds:
+            path = ROOT / "models" / "restore_frames" / f"seed{s}" / "model.pt"
+            ck = ckpt_mod.read_checkpoint(path)
+            net = ckpt_mod.model_from_checkpoint(path, ck).eval()
+            trained = checkpoint_guide(ck)
+            d = ck["extra"]["decision"]
+            guides = [("trained", trained)] + ([("theta", trained.__class__(trained.log_eps, theta))]
+                                               if theta != trained.threshold else [])
+            for label, guide in guides:
+                data = PairsDataset(pairs, crop=None, augment=False, guide=guide)
+                with torch.no_grad():
+                    mu, prob, target, support = predict_counts(net, data, torch.device("cpu"), with_support=True)
+                degraded = np.stack([data[i]["counts_degraded"].numpy() for i in range(len(data))])
+                restored = decide_counts(mu, prob, float(d["threshold"]), support if support_applies(d) else None,
+                                         decision_gain(d))
+                if "raw" not in rows:
+                    rows["raw"] = {"-": pair_metrics(degraded, target, degraded)}
+                m = pair_metrics(restored, target, degraded)
+                rows.setdefault(f"guide at {guide.threshold:g}" + (" (trained)" if label == "trained" else ""),
+                                {})[str(s)] = m
+                log.info("theta %g seed %d guide %g: %s", theta, s, guide.threshold, m)
+        out[str(theta)] = rows
+    return out
+
+
+def real_rows(recording: Path, params: dict, thresholds: dict, seeds) -> dict:
+    """Part 2: ``{protocol: {label: {stream: scores}}}``."""
+    from restore_frame_pair import real_scores, real_streams
+    ck = {f"seed {s}": (ROOT / "models" / "restore_frames" / f"seed{s}" / "model.pt", "library") for s in seeds}
+    out = {}
+    for step, proto in ((1, "between consecutive frames"), (2, "every other frame hidden")):
+        out[proto] = {label: real_scores(recording, real_streams(recording, ck, params, step, guide_threshold=thr),
+                                         params)
+                      for label, thr in thresholds.items()}
+    return out
+
+
+def table(res: dict) -> str:
+    lines = ["Part 1: the circuit generator's rendering of the test split at threshold theta; truth = its "
+             "undegraded events at theta.", ""]
+    for theta, rows in res["circuit"].items():
+        lines += [f"theta = {theta}:", "", "| guide | seed | " + " | ".join(METRICS) + " |",
+                  "|---|---|" + "---:|" * len(METRICS)]
+        lines += [f"| {name} | {seed} | " + " | ".join(f"{m[k]:.3f}" for k in METRICS) + " |"
+                  for name, runs in rows.items() for seed, m in runs.items()]
+        lines.append("")
+    lines += ["Part 2: DAVIS346 (" + ", ".join(f"{k}: {v:.3f}" if v else f"{k}: trained"
+                                               for k, v in res["real_thresholds"].items()) + ")", ""]
+    for proto, by in res["real"].items():
+        lines += [f"Windows {proto}:", "",
+                  "| guide threshold | stream | events | x raw | consistency (r2_fitted) | raw's | not recorded |",
+                  "|---|---|---:|---:|---:|---:|---:|"]
+        for label, streams in by.items():
+            lines += [f"| {label} | {n} | {m['events']} | {m['count_ratio_vs_raw']:.3f} | {m['r2_fitted']:.3f} | "
+                      f"{m['raw_r2_fitted']:.3f} | {100 * m['not_recorded']:.1f} % |"
+                      for n, m in streams.items() if n != "raw" or label == next(iter(by))]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    ap.add_argument("--thetas", type=float, nargs="+", default=[0.2, 0.3, 0.4])
+    ap.add_argument("--real", type=Path, default=ROOT / "data" / "real" / "davis346_road" / "davis346.aedat4")
+    ap.add_argument("--report", type=Path, default=ROOT / "results" / "calibration" / "davis346" / "report.json")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "restore_guide_threshold.json")
+    args = ap.parse_args()
+    from restore_train_range import write_results
+
+    from rdnet.config import load_params
+    from rdnet.deblur.consistency import LogFrames, compare_consistency
+    from rdnet.events.io import load as load_recording
+    from rdnet.restore.settings import calibrated_restore
+    from rdnet.study.config import calibrated_configs
+
+    params = load_params(ROOT / "params.yaml")
+    s = params["sensor"]
+    rec = load_recording(args.real)
+    own = compare_consistency(LogFrames.of(rec.frames, rec.events, s["log_eps"]), {"raw": rec.events},
+                              s["threshold_on"], s["threshold_off"])["raw"]
+    thresholds = {"trained (0.2)": None,
+                  "the recording's least squares": float(own["threshold_on_fitted"]),
+                  "rdnet calibrate's fit": calibrated_restore(*calibrated_configs(args.report))["guide_threshold"]}
+    res = {"seeds": args.seeds, "thetas": args.thetas, "load_average_1min_before": os.getloadavg()[0],
+           "real_thresholds": thresholds}
+    with tempfile.TemporaryDirectory() as tmp:
+        res["circuit"] = circuit_rows(params, args.thetas, args.seeds, Path(tmp))
+    res["real"] = real_rows(args.real, params, thresholds, args.seeds)
+    write_results(args.out, res, table)
+    print(json.dumps({"out": str(args.out)}))
+
+
+if __name__ == "__main__":
+    main()
