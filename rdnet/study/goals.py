@@ -13,9 +13,11 @@ Each goal is the issue's own definition and threshold:
   above every baseline's (raw, BAF, STCF, GEF, the EDnCNN-style classifier), the voxel L1 over
   all voxels at least 30 % below raw's, the restored/undegraded count ratio within 0.85-1.15
   (definitions: ``rdnet.eval.events``);
-- on DAVIS346 (frames; the image-guided restorer, row ``rdnet`` of ``restore_real``, and the
-  frame-pair one, row ``rdnet_frames``, when present): the event-frame consistency of the
-  restored stream at least raw's, its count within 0.5-2x raw;
+- on DAVIS346 (frames; the image-guided restorer, row ``rdnet`` of ``restore_real``, the
+  frame-pair one, row ``rdnet_frames``, when present, and that one with its guide at the
+  camera's calibrated threshold, row ``frames_threshold`` of ``closed_loop``'s summary, when
+  given: what ``rdnet restore --calibration`` runs, shown also with the latency undone): the
+  event-frame consistency of the restored stream at least raw's, its count within 0.5-2x raw;
 - on the DVXplorer take (a still camera, events only; the events-only restorer): at least 75 %
   of the events in the activity mask kept, at most 15 % of the background and 5 % of the
   known hot pixels' events, and less background and hot-pixel events than BAF keeps, at the
@@ -134,9 +136,12 @@ def held_out_rows(restoration: Mapping, source: str | Path | None = None, *, whe
     ]
 
 
-def real_rows(real: Mapping, source: str | Path | None = None) -> list[tuple[str, str, str]]:
+def real_rows(real: Mapping, source: str | Path | None = None, closed_loop: Mapping | None = None,
+              closed_source: str | Path | None = None) -> list[tuple[str, str, str]]:
     """The DAVIS346 and DVXplorer goals: (goal, measured, status); a recording missing from
-    ``real`` (one ``restore_real`` could not read on that machine) gives no rows."""
+    ``real`` (one ``restore_real`` could not read on that machine) gives no rows.
+    ``closed_loop``: ``closed_loop``'s summary.json, whose frame-pair rows at the calibrated
+    threshold join the DAVIS346 goals when it has them."""
     recs = _get(real, "recordings", source=source)
 
     def val(*path):
@@ -152,10 +157,23 @@ def real_rows(real: Mapping, source: str | Path | None = None) -> list[tuple[str
             runs.append(("frame-pair", "rdnet_frames"))
         c = [(n, float(val("davis346_road", "methods", k, "consistency_r2"))) for n, k in runs]
         out = [(n, int(val("davis346_road", "methods", k, "events_out"))) for n, k in runs]
+        note = ""
+        loop = _get(closed_loop, "recording", "rows", source=closed_source) if closed_loop is not None else {}
+        if "frames_threshold" in loop:         # rdnet restore --calibration: the camera's threshold
+            def row(name, key):
+                return _get(closed_loop, "recording", "rows", name, key, source=closed_source)
+            threshold = float(_get(closed_loop, "recording", "guide_threshold", source=closed_source))
+            name = f"frame-pair (calibrated threshold {threshold:.3g})"
+            c.append((name, float(row("frames_threshold", "consistency_r2"))))
+            out.append((name, int(row("frames_threshold", "events_out"))))
+            if "frames_threshold_latency" in loop:
+                note = (f"with the calibrated latency undone too, `rdnet restore --calibration`: "
+                        f"{float(row('frames_threshold_latency', 'consistency_r2')):.3f} against the corrected raw "
+                        f"stream's {float(row('latency_corrected', 'consistency_r2')):.3f}")
         lo, hi = DAVIS_COUNT
         rows += [
             (f"DAVIS346: event-frame consistency of the restored stream at least raw's ({c_raw:.3f})",
-             ", ".join(f"{n} {v:.3f}" for n, v in c), _verdict([(n, v >= c_raw) for n, v in c])),
+             ", ".join(f"{n} {v:.3f}" for n, v in c), _verdict([(n, v >= c_raw) for n, v in c], note)),
             (f"DAVIS346: restored count within {lo:g}-{hi:g}x raw ({n_raw:,})",
              ", ".join(f"{n} {v:,} ({v / n_raw:.2f}x)" for n, v in out),
              _verdict([(n, lo * n_raw <= v <= hi * n_raw) for n, v in out])),
@@ -202,25 +220,28 @@ def circuit_rows(circuit: Mapping, source: str | Path | None = None) -> list[tup
 
 
 def goals_table(restoration: Mapping, real: Mapping, circuit: Mapping | None = None,
-                sources: tuple = (None, None, None)) -> str:
+                sources: tuple = (None, None, None, None), closed_loop: Mapping | None = None) -> str:
     """The markdown table (with a line of ESR scores under it). ``circuit``: the same
-    metrics on the circuit generator's events (three more rows). ``sources``: the files
-    the mappings came from, named when a metric is missing."""
+    metrics on the circuit generator's events (three more rows); ``closed_loop``:
+    ``closed_loop``'s summary (:func:`real_rows`). ``sources``: the files the mappings came
+    from (restoration, real, circuit, closed loop), named when a metric is missing."""
     rows = held_out_rows(restoration, sources[0])
     if circuit is not None:
         rows += circuit_rows(circuit, sources[2] if len(sources) > 2 else None)
-    rows += real_rows(real, sources[1])
+    rows += real_rows(real, sources[1], closed_loop, sources[3] if len(sources) > 3 else None)
     lines = ["| goal | measured | status |", "|---|---|---|"]
     lines += [f"| {g} | {m} | {s} |" for g, m, s in rows]
     return "\n".join(lines) + "\n\n" + esr_row(real, sources[1]) + "\n"
 
 
-def goals_from_files(restoration: str | Path, real: str | Path, circuit: str | Path | None = None) -> str:
+def goals_from_files(restoration: str | Path, real: str | Path, circuit: str | Path | None = None,
+                     closed_loop: str | Path | None = None) -> str:
     """:func:`goals_table` of the metrics files (a missing or unreadable file, or a missing
     metric, is a :class:`~rdnet.errors.FormatError` naming the file)."""
     from rdnet.config import read_json
     return goals_table(read_json(restoration), read_json(real), None if circuit is None else read_json(circuit),
-                       sources=(restoration, real, circuit))
+                       sources=(restoration, real, circuit, closed_loop),
+                       closed_loop=None if closed_loop is None else read_json(closed_loop))
 
 
 __all__ = ["GOALS_END", "GOALS_START", "MissingMetric", "circuit_rows", "esr_row", "goals_from_files", "goals_table",

@@ -160,3 +160,24 @@ def test_the_frame_pair_restorer_is_scored_when_present_and_named_where_it_alone
     rows = real_rows(r)
     assert rows[0][1] == "image-guided 0.340, frame-pair 0.370" and rows[0][2] == "**not met** (met by frame-pair)"
     assert "frame-pair 130 (1.30x)" in rows[1][1] and rows[1][2] == "met"
+
+
+def test_the_frame_pair_restorer_at_the_calibrated_threshold_joins_the_davis346_goals():
+    """closed_loop's summary: its frames_threshold row is scored against restore_real's raw
+    consistency; the latency-corrected pair is a note; a missing value names the file."""
+    def loop(c=0.351, out=96, lat=0.401):
+        rows = {"frames_threshold": {"consistency_r2": c, "events_out": out},
+                "frames_threshold_latency": {"consistency_r2": lat, "events_out": out},
+                "latency_corrected": {"consistency_r2": 0.397, "events_out": 100}}
+        return {"recording": {"guide_threshold": 0.412, "rows": rows}}
+    rows = real_rows(real(), closed_loop=loop())
+    assert "frame-pair (calibrated threshold 0.412) 0.351" in rows[0][1]
+    assert rows[0][2] == "met (with the calibrated latency undone too, `rdnet restore --calibration`: 0.401 " \
+                         "against the corrected raw stream's 0.397)"
+    assert "frame-pair (calibrated threshold 0.412) 96 (0.96x)" in rows[1][1]
+    assert _status(real_rows(real(), closed_loop=loop(c=0.349)), "DAVIS346: event-frame") == "**not met**"
+    assert real_rows(real(), closed_loop={"recording": {"rows": {}}}) == real_rows(real())   # no such rows
+    bad = loop()
+    del bad["recording"]["rows"]["frames_threshold"]["events_out"]
+    with pytest.raises(MissingMetric, match="loop.json: field 'recording.rows.frames_threshold.events_out'"):
+        goals_table(restoration(), real(), closed_loop=bad, sources=("r.json", "s.json", None, "loop.json"))
