@@ -30,14 +30,13 @@ from __future__ import annotations
 
 import argparse
 import copy
+import dataclasses
 import json
 import logging
 import os
 import sys
 import tempfile
 from pathlib import Path
-
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -47,16 +46,12 @@ log = logging.getLogger("restore_guide_threshold")
 
 def circuit_rows(params: dict, thetas, seeds, work: Path) -> dict:
     """Part 1 (module docstring): ``{theta: {row: metrics}}``."""
-    import torch
-    from restore_learned_eval import pair_metrics
+    from restore_learned_eval import eval_pairs
 
     from rdnet.eval.predict import checkpoint_guide
-    from rdnet.nn.decision import decide_counts, decision_gain, support_applies
     from rdnet.study.data import sequences
     from rdnet.study.independent import circuit_pairs
     from rdnet.train import checkpoint as ckpt_mod
-    from rdnet.train.data import PairsDataset
-    from rdnet.train.loop import predict_counts
 
     files = sequences(ROOT / "data" / "events", "test")
     out = {}
@@ -64,28 +59,18 @@ def circuit_rows(params: dict, thetas, seeds, work: Path) -> dict:
         p = copy.deepcopy(params)
         p["sensor"] = {**p["sensor"], "threshold_on": theta, "threshold_off": theta}
         pairs, _ = circuit_pairs(p, files, work / f"theta{theta}", 0)
+        paths = {str(s): ROOT / "models" / "restore_frames" / f"seed{s}" / "model.pt" for s in seeds}
+        trained = {checkpoint_guide(ckpt_mod.read_checkpoint(p)) for p in paths.values()}
+        if len(trained) != 1:
+            raise SystemExit(f"the seeds were trained with different guides: {trained}")
+        trained = trained.pop()
         rows = {}
-        for s in seeds:
-            path = ROOT / "models" / "restore_frames" / f"seed{s}" / "model.pt"
-            ck = ckpt_mod.read_checkpoint(path)
-            net = ckpt_mod.model_from_checkpoint(path, ck).eval()
-            trained = checkpoint_guide(ck)
-            d = ck["extra"]["decision"]
-            guides = [("trained", trained)] + ([("theta", trained.__class__(trained.log_eps, theta))]
-                                               if theta != trained.threshold else [])
-            for label, guide in guides:
-                data = PairsDataset(pairs, crop=None, augment=False, guide=guide)
-                with torch.no_grad():
-                    mu, prob, target, support = predict_counts(net, data, torch.device("cpu"), with_support=True)
-                degraded = np.stack([data[i]["counts_degraded"].numpy() for i in range(len(data))])
-                restored = decide_counts(mu, prob, float(d["threshold"]), support if support_applies(d) else None,
-                                         decision_gain(d))
-                if "raw" not in rows:
-                    rows["raw"] = {"-": pair_metrics(degraded, target, degraded)}
-                m = pair_metrics(restored, target, degraded)
-                rows.setdefault(f"guide at {guide.threshold:g}" + (" (trained)" if label == "trained" else ""),
-                                {})[str(s)] = m
-                log.info("theta %g seed %d guide %g: %s", theta, s, guide.threshold, m)
+        for guide in [trained] + ([dataclasses.replace(trained, threshold=theta)]
+                                  if theta != trained.threshold else []):
+            sc = eval_pairs(pairs, paths, guide=guide)
+            rows.setdefault("raw", {"-": sc["raw"]})
+            rows[f"guide at {guide.threshold:g}" + (" (trained)" if guide == trained else "")] = {
+                s: {k: sc[s][k] for k in METRICS} for s in paths}
         out[str(theta)] = rows
     return out
 

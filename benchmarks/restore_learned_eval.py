@@ -81,8 +81,13 @@ def stcf_counts(pairs: Path, events_dir: Path, split: str, filters: dict) -> np.
     return np.stack(out)
 
 
-def eval_pairs(pairs: Path, ckpts: dict[str, Path], also_thresholds=(), stcf: np.ndarray | None = None) -> dict:
-    data = PairsDataset(pairs, crop=None, augment=False)
+def eval_pairs(pairs: Path, ckpts: dict[str, Path], also_thresholds=(), stcf: np.ndarray | None = None,
+               guide=None) -> dict:
+    """The metrics of :func:`pair_metrics` for the raw degraded events, ``stcf`` (counts, when
+    given) and each checkpoint at its stored decision (and at ``also_thresholds``).
+    ``guide``: the frame-pair guide (:class:`rdnet.nn.guide.FramePairGuide`) every checkpoint
+    reads, for ``restore_frames`` networks."""
+    data = PairsDataset(pairs, crop=None, augment=False, guide=guide)
     rows = [data[i] for i in range(len(data))]
     target = np.stack([r["counts_undegraded"].numpy() for r in rows])
     degraded = np.stack([r["counts_degraded"].numpy() for r in rows])
