@@ -22,6 +22,12 @@ guide the camera's threshold instead. Two checks, neither with rdnet's simulator
    and with every other frame hidden (``restore_frame_pair.real_streams`` / ``real_scores``):
    events out / raw, event-frame consistency, and the share of output events that are not
    recorded events (added).
+3. **What the added events are** (DAVIS346, windows between consecutive frames, as recorded
+   and with the calibrated latency subtracted from the timestamps first): for each seed at
+   the trained and at the calibrated threshold, the events it adds, the share of them at a
+   pixel whose frames changed by at least the calibrated threshold over the interval, the
+   share whose polarity agrees with the sign of that change, and the share at a pixel that
+   recorded an event in the interval.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/restore_guide_threshold.py   # needs dvc repro
         writes benchmarks/results/restore_guide_threshold.{json,md}
@@ -87,6 +93,49 @@ def real_rows(recording: Path, params: dict, thresholds: dict, seeds) -> dict:
     return out
 
 
+def added_rows(recording: Path, params: dict, thresholds: dict, seeds, latency_us: float, cut: float,
+               work: Path) -> dict:
+    """Part 3: ``{"as recorded" | "latency undone": {label: {seed: shares}}}``."""
+    import numpy as np
+    from restore_frame_pair import real_streams
+
+    from rdnet.events import Events, Recording
+    from rdnet.events.io import load as load_recording
+    from rdnet.events.io import save
+    from rdnet.events.select import event_keys
+
+    rec = load_recording(recording)
+    log_grey = np.log(rec.frames.grey().astype(np.float64) + params["sensor"]["log_eps"])
+    t = rec.frames.t_us.astype(np.int64)
+    a = rec.events.array.copy()
+    a["t"] -= int(round(latency_us))
+    shifted = work / "latency_undone.h5"
+    save(shifted, Recording(rec.width, rec.height, events=Events(a[a["t"] >= 0], rec.width, rec.height),
+                            frames=rec.frames, sensor="latency undone"))
+    ck = {str(s): (ROOT / "models" / "restore_frames" / f"seed{s}" / "model.pt", "library") for s in seeds}
+    out = {}
+    for proto, path in (("as recorded", recording), ("latency undone", shifted)):
+        out[proto] = {}
+        for label, thr in thresholds.items():
+            st = real_streams(path, ck, params, 1, guide_threshold=thr)
+            raw = st["raw"]
+            k_raw = np.searchsorted(t, raw.t, side="right") - 1
+            fired = np.zeros((len(t), rec.height, rec.width), bool)
+            fired[k_raw, raw.y, raw.x] = True
+            out[proto][label] = {}
+            for s in ck:
+                e = st[s].array[~np.isin(event_keys(st[s]), event_keys(raw))]
+                k = np.searchsorted(t, e["t"], side="right") - 1
+                dl = log_grey[k + 1, e["y"], e["x"]] - log_grey[k, e["y"], e["x"]]
+                share = (lambda m: float(m.mean()) if m.size else None)  # noqa: E731
+                out[proto][label][s] = {
+                    "added": int(len(e)), "added_share": len(e) / max(len(st[s]), 1),
+                    "changed_by_a_threshold": share(np.abs(dl) >= cut),
+                    "polarity_agrees": share(np.sign(dl) == np.where(e["p"] > 0, 1, -1)),
+                    "pixel_fired": share(fired[k, e["y"], e["x"]]), "on_share": share(e["p"] > 0)}
+    return out
+
+
 def table(res: dict) -> str:
     lines = ["Part 1: the circuit generator's rendering of the test split at threshold theta; truth = its "
              "undegraded events at theta.", ""]
@@ -106,6 +155,17 @@ def table(res: dict) -> str:
             lines += [f"| {label} | {n} | {m['events']} | {m['count_ratio_vs_raw']:.3f} | {m['r2_fitted']:.3f} | "
                       f"{m['raw_r2_fitted']:.3f} | {100 * m['not_recorded']:.1f} % |"
                       for n, m in streams.items() if n != "raw" or label == next(iter(by))]
+        lines.append("")
+    fmt = (lambda v: "-" if v is None else f"{100 * v:.1f} %")  # noqa: E731
+    lines += [f"Part 3: the events added on DAVIS346 between consecutive frames (changed: the frames' log change "
+              f"at the pixel over the interval at least {res['added_cut']:.3f}, the calibrated threshold).", ""]
+    for proto, by in res.get("added", {}).items():
+        lines += [f"{proto}:", "", "| guide threshold | seed | added | of the output | at a changed pixel | "
+                  "polarity agrees with the change | pixel fired in the interval | ON |",
+                  "|---|---|---:|---:|---:|---:|---:|---:|"]
+        lines += [f"| {label} | {s} | {m['added']} | {fmt(m['added_share'])} | {fmt(m['changed_by_a_threshold'])} | "
+                  f"{fmt(m['polarity_agrees'])} | {fmt(m['pixel_fired'])} | {fmt(m['on_share'])} |"
+                  for label, seeds in by.items() for s, m in seeds.items()]
         lines.append("")
     return "\n".join(lines)
 
@@ -140,6 +200,11 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         res["circuit"] = circuit_rows(params, args.thetas, args.seeds, Path(tmp))
     res["real"] = real_rows(args.real, params, thresholds, args.seeds)
+    fitted = calibrated_restore(*calibrated_configs(args.report))
+    res["added_cut"] = fitted["guide_threshold"]
+    with tempfile.TemporaryDirectory() as tmp:
+        res["added"] = added_rows(args.real, params, {k: v for k, v in thresholds.items() if "least" not in k},
+                                  args.seeds, fitted["latency_us"], fitted["guide_threshold"], Path(tmp))
     write_results(args.out, res, table)
     print(json.dumps({"out": str(args.out)}))
 
