@@ -28,6 +28,12 @@ guide the camera's threshold instead. Two checks, neither with rdnet's simulator
    pixel whose frames changed by at least the calibrated threshold over the interval, the
    share whose polarity agrees with the sign of that change, and the share at a pixel that
    recorded an event in the interval.
+4. **A polarity cap, checked, not built** (``--polarity-cap``): drop every added event whose
+   polarity opposes its pixel's guide where the guide asks for at least one event
+   (``|change| >= 1``, the guide's change channel). On the simulated test split and the
+   circuit generator's rendering at ``theta`` 0.4 (voxel counts: additions beyond the input
+   capped in the opposing polarity) and on DAVIS346 at both thresholds (output events not
+   recorded, between consecutive frames): the metrics of parts 1 and 2 with and without it.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/restore_guide_threshold.py   # needs dvc repro
         writes benchmarks/results/restore_guide_threshold.{json,md}
@@ -136,18 +142,99 @@ def added_rows(recording: Path, params: dict, thresholds: dict, seeds, latency_u
     return out
 
 
+def capped_counts(restored, degraded, change, bins: int):
+    """``restored`` (N, 2 bins, H, W) with the additions beyond ``degraded`` removed in the
+    polarity that opposes ``change`` (N, H, W; the guide's change channel) where
+    ``|change| >= 1``: OFF where the guide rises, ON where it falls."""
+    import numpy as np
+    out = restored.copy()
+    on, off = out[:, :bins], out[:, bins:]
+    rises, falls = (change >= 1)[:, None], (change <= -1)[:, None]
+    np.copyto(off, np.minimum(off, degraded[:, bins:]).astype(out.dtype), where=rises)
+    np.copyto(on, np.minimum(on, degraded[:, :bins]).astype(out.dtype), where=falls)
+    return out
+
+
+def cap_rows(params: dict, seeds, work: Path, recording: Path, thresholds: dict) -> dict:
+    """Part 4 (module docstring)."""
+    import copy as _copy
+
+    import numpy as np
+    import torch
+    from restore_frame_pair import real_scores, real_streams
+    from restore_learned_eval import pair_metrics
+
+    from rdnet.eval.predict import checkpoint_guide
+    from rdnet.events import Events
+    from rdnet.events.io import load as load_recording
+    from rdnet.events.select import event_keys
+    from rdnet.nn.decision import decide_counts, decision_gain, support_applies
+    from rdnet.study.data import sequences
+    from rdnet.study.independent import circuit_pairs
+    from rdnet.train import checkpoint as ckpt_mod
+    from rdnet.train.data import PairsDataset
+    from rdnet.train.loop import predict_counts
+
+    paths = {str(s): ROOT / "models" / "restore_frames" / f"seed{s}" / "model.pt" for s in seeds}
+    p = _copy.deepcopy(params)
+    p["sensor"] = {**p["sensor"], "threshold_on": 0.4, "threshold_off": 0.4}
+    circuit, _ = circuit_pairs(p, sequences(ROOT / "data" / "events", "test"), work / "theta0.4", 0)
+    out = {}
+    for label, pairs, theta in (("simulated test split", ROOT / "data" / "pairs" / "test.h5", None),
+                                ("circuit generator, theta 0.4, guide 0.4", circuit, 0.4)):
+        out[label] = {}
+        for s, path in paths.items():
+            ck = ckpt_mod.read_checkpoint(path)
+            net = ckpt_mod.model_from_checkpoint(path, ck).eval()
+            guide = checkpoint_guide(ck)
+            guide = guide if theta is None else dataclasses.replace(guide, threshold=theta)
+            data = PairsDataset(pairs, crop=None, augment=False, guide=guide)
+            with torch.no_grad():
+                mu, prob, target, support = predict_counts(net, data, torch.device("cpu"), with_support=True)
+            rows = [data[i] for i in range(len(data))]
+            degraded = np.stack([r["counts_degraded"].numpy() for r in rows])
+            change = np.stack([r["guide"][-1].numpy() for r in rows])
+            d = ck["extra"]["decision"]
+            restored = decide_counts(mu, prob, float(d["threshold"]), support if support_applies(d) else None,
+                                     decision_gain(d))
+            bins = restored.shape[1] // 2
+            out[label][s] = {"as decided": pair_metrics(restored, target, degraded),
+                             "polarity cap": pair_metrics(capped_counts(restored, degraded, change, bins), target,
+                                                          degraded)}
+            data.close()
+    rec = load_recording(recording)
+    log_grey = np.log(rec.frames.grey().astype(np.float64) + params["sensor"]["log_eps"])
+    t = rec.frames.t_us.astype(np.int64)
+    ck = {s: (path, "library") for s, path in paths.items()}
+    for label, thr in thresholds.items():
+        st = real_streams(recording, ck, params, 1, guide_threshold=thr)
+        cut = thr if thr is not None else 0.2
+        capped = {"raw": st["raw"]}
+        for s in ck:
+            e = st[s]
+            added = ~np.isin(event_keys(e), event_keys(st["raw"]))
+            k = np.searchsorted(t, e.t, side="right") - 1
+            change = (log_grey[k + 1, e.y, e.x] - log_grey[k, e.y, e.x]) / cut
+            opposes = np.where(e.p > 0, change <= -1, change >= 1)
+            capped[s] = Events(e.array[~(added & opposes)], e.width, e.height, validate=False)
+        out[f"DAVIS346, guide {label}"] = {"as decided": real_scores(recording, st, params),
+                                           "polarity cap": real_scores(recording, capped, params)}
+    return out
+
+
 def table(res: dict) -> str:
     lines = ["Part 1: the circuit generator's rendering of the test split at threshold theta; truth = its "
-             "undegraded events at theta.", ""]
-    for theta, rows in res["circuit"].items():
+             "undegraded events at theta.", ""] if res.get("circuit") else []
+    for theta, rows in res.get("circuit", {}).items():
         lines += [f"theta = {theta}:", "", "| guide | seed | " + " | ".join(METRICS) + " |",
                   "|---|---|" + "---:|" * len(METRICS)]
         lines += [f"| {name} | {seed} | " + " | ".join(f"{m[k]:.3f}" for k in METRICS) + " |"
                   for name, runs in rows.items() for seed, m in runs.items()]
         lines.append("")
-    lines += ["Part 2: DAVIS346 (" + ", ".join(f"{k}: {v:.3f}" if v else f"{k}: trained"
-                                               for k, v in res["real_thresholds"].items()) + ")", ""]
-    for proto, by in res["real"].items():
+    if res.get("real"):
+        lines += ["Part 2: DAVIS346 (" + ", ".join(f"{k}: {v:.3f}" if v else f"{k}: trained"
+                                                   for k, v in res["real_thresholds"].items()) + ")", ""]
+    for proto, by in res.get("real", {}).items():
         lines += [f"Windows {proto}:", "",
                   "| guide threshold | stream | events | x raw | consistency (r2_fitted) | raw's | not recorded |",
                   "|---|---|---:|---:|---:|---:|---:|"]
@@ -157,8 +244,10 @@ def table(res: dict) -> str:
                       for n, m in streams.items() if n != "raw" or label == next(iter(by))]
         lines.append("")
     fmt = (lambda v: "-" if v is None else f"{100 * v:.1f} %")  # noqa: E731
-    lines += [f"Part 3: the events added on DAVIS346 between consecutive frames (changed: the frames' log change "
-              f"at the pixel over the interval at least {res['added_cut']:.3f}, the calibrated threshold).", ""]
+    if res.get("added"):
+        lines += [f"Part 3: the events added on DAVIS346 between consecutive frames (changed: the frames' log "
+                  f"change at the pixel over the interval at least {res['added_cut']:.3f}, the calibrated "
+                  "threshold).", ""]
     for proto, by in res.get("added", {}).items():
         lines += [f"{proto}:", "", "| guide threshold | seed | added | of the output | at a changed pixel | "
                   "polarity agrees with the change | pixel fired in the interval | ON |",
@@ -167,6 +256,22 @@ def table(res: dict) -> str:
                   f"{fmt(m['polarity_agrees'])} | {fmt(m['pixel_fired'])} | {fmt(m['on_share'])} |"
                   for label, seeds in by.items() for s, m in seeds.items()]
         lines.append("")
+    if res.get("cap"):
+        lines += ["Part 4: the polarity cap (checked, not built).", ""]
+        for label, by in res["cap"].items():
+            if label.startswith("DAVIS346"):
+                lines += [f"{label}:", "", "| stream | as decided: x raw, consistency, not recorded | "
+                          "polarity cap: x raw, consistency, not recorded |", "|---|---|---|"]
+                lines += [f"| {n} | " + " | ".join(
+                    f"{by[v][n]['count_ratio_vs_raw']:.3f}, {by[v][n]['r2_fitted']:.3f}, "
+                    f"{100 * by[v][n]['not_recorded']:.1f} %" for v in ("as decided", "polarity cap")) + " |"
+                    for n in by["as decided"]]
+            else:
+                lines += [f"{label}:", "", "| seed | rule | " + " | ".join(METRICS) + " |",
+                          "|---|---|" + "---:|" * len(METRICS)]
+                lines += [f"| {s} | {v} | " + " | ".join(f"{m[v][k]:.3f}" for k in METRICS) + " |"
+                          for s, m in by.items() for v in ("as decided", "polarity cap")]
+            lines.append("")
     return "\n".join(lines)
 
 
@@ -178,6 +283,7 @@ def main() -> None:
     ap.add_argument("--real", type=Path, default=ROOT / "data" / "real" / "davis346_road" / "davis346.aedat4")
     ap.add_argument("--report", type=Path, default=ROOT / "results" / "calibration" / "davis346" / "report.json")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "restore_guide_threshold.json")
+    ap.add_argument("--polarity-cap", action="store_true", help="part 4 only, into --out (another file)")
     args = ap.parse_args()
     from restore_train_range import write_results
 
@@ -197,6 +303,13 @@ def main() -> None:
                   "rdnet calibrate's fit": calibrated_restore(*calibrated_configs(args.report))["guide_threshold"]}
     res = {"seeds": args.seeds, "thetas": args.thetas, "load_average_1min_before": os.getloadavg()[0],
            "real_thresholds": thresholds}
+    if args.polarity_cap:
+        with tempfile.TemporaryDirectory() as tmp:
+            res["cap"] = cap_rows(params, args.seeds, Path(tmp), args.real,
+                                  {k: v for k, v in thresholds.items() if "least" not in k})
+        write_results(args.out, res, table)
+        print(json.dumps({"out": str(args.out)}))
+        return
     with tempfile.TemporaryDirectory() as tmp:
         res["circuit"] = circuit_rows(params, args.thetas, args.seeds, Path(tmp))
     res["real"] = real_rows(args.real, params, thresholds, args.seeds)
