@@ -162,13 +162,12 @@ def cap_rows(params: dict, seeds, work: Path, recording: Path, thresholds: dict)
     import numpy as np
     import torch
     from restore_frame_pair import real_scores, real_streams
-    from restore_learned_eval import pair_metrics
+    from restore_learned_eval import pair_metrics, stored_decision
 
     from rdnet.eval.predict import checkpoint_guide
     from rdnet.events import Events
     from rdnet.events.io import load as load_recording
     from rdnet.events.select import event_keys
-    from rdnet.nn.decision import decide_counts, decision_gain, support_applies
     from rdnet.study.data import sequences
     from rdnet.study.independent import circuit_pairs
     from rdnet.train import checkpoint as ckpt_mod
@@ -194,9 +193,7 @@ def cap_rows(params: dict, seeds, work: Path, recording: Path, thresholds: dict)
             rows = [data[i] for i in range(len(data))]
             degraded = np.stack([r["counts_degraded"].numpy() for r in rows])
             change = np.stack([r["guide"][-1].numpy() for r in rows])
-            d = ck["extra"]["decision"]
-            restored = decide_counts(mu, prob, float(d["threshold"]), support if support_applies(d) else None,
-                                     decision_gain(d))
+            restored = stored_decision(ck["extra"]["decision"], mu, prob, support)
             bins = restored.shape[1] // 2
             out[label][s] = {"as decided": pair_metrics(restored, target, degraded),
                              "polarity cap": pair_metrics(capped_counts(restored, degraded, change, bins), target,

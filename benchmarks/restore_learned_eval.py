@@ -81,6 +81,13 @@ def stcf_counts(pairs: Path, events_dir: Path, split: str, filters: dict) -> np.
     return np.stack(out)
 
 
+def stored_decision(decision: dict, out: np.ndarray, prob: np.ndarray, support: np.ndarray) -> np.ndarray:
+    """Per-polarity counts of a count network's heads under its checkpoint's ``decision``
+    (fitted threshold, the support rule when it applies, the count gain)."""
+    return decide_counts(out, prob, float(decision["threshold"]), support if support_applies(decision) else None,
+                         decision_gain(decision))
+
+
 def eval_pairs(pairs: Path, ckpts: dict[str, Path], also_thresholds=(), stcf: np.ndarray | None = None,
                guide=None) -> dict:
     """The metrics of :func:`pair_metrics` for the raw degraded events, ``stcf`` (counts, when
@@ -104,8 +111,7 @@ def eval_pairs(pairs: Path, ckpts: dict[str, Path], also_thresholds=(), stcf: np
         if net.output == "counts":
             decision = ck["extra"]["decision"]
             thr = float(decision["threshold"])
-            restored = decide_counts(out, prob, thr, support if support_applies(decision) else None,
-                                     decision_gain(decision))
+            restored = stored_decision(decision, out, prob, support)
             for t in also_thresholds:      # the same network with another (not fitted) threshold
                 res[f"{name}@{t}"] = {**pair_metrics(decide_counts(out, prob, t), target, degraded), "threshold": t}
         else:
