@@ -43,6 +43,7 @@ import torch
 
 from rdnet.errors import ConfigError
 from rdnet.eval import metrics as M
+from rdnet.sim.blur import FRAME_KEYS
 from rdnet.train.data import EVENT_KINDS, read_pairs_info, read_rows_whole, sample_datasets
 
 log = logging.getLogger(__name__)
@@ -97,15 +98,16 @@ _PAIRS_IN_MEMORY: dict = {}
 
 
 def _pairs_rows(f, pairs_path: str | Path, info) -> Mapping:
-    """name -> rows source of the open pairs file ``f``: its datasets as numpy arrays, read
-    whole on the first call for this file (:func:`rdnet.train.data.read_rows_whole`) and
-    kept until another file is read or this one changes; ``f`` itself when they do not fit
-    in :data:`rdnet.train.data.PRELOAD_MAX_BYTES`."""
+    """name -> rows source of the open pairs file ``f``: its datasets as numpy arrays (the
+    window frames too when the file has them, for a frame-pair restorer), read whole on the
+    first call for this file (:func:`rdnet.train.data.read_rows_whole`) and kept until
+    another file is read or this one changes; ``f`` itself when they do not fit in
+    :data:`rdnet.train.data.PRELOAD_MAX_BYTES`."""
     st = Path(pairs_path).stat()
     key = (str(Path(pairs_path).resolve()), st.st_ino, st.st_mtime_ns, st.st_size)
     if key not in _PAIRS_IN_MEMORY:
         _PAIRS_IN_MEMORY.clear()
-        arrays = read_rows_whole(f, ("level",) + sample_datasets(info))
+        arrays = read_rows_whole(f, ("level",) + sample_datasets(info, info.has_frame_pair))
         if arrays is None:
             return f
         _PAIRS_IN_MEMORY[key] = arrays
@@ -213,10 +215,8 @@ def iter_predictions(kind: str, model, pairs_path: str | Path, events: str = "de
                 if stage1 is not None and not stage1.image_channels:
                     img = None                             # events-only restorer
                 elif guide is not None:                    # the frame-pair restorer's image
-                    first, last = (np.asarray(f[k][uniq.tolist()], np.float32)[inv] for k in ("frame_first", "frame_last"))
-                    pair = np.empty((idx.size, first.shape[1] + 1) + first.shape[2:], np.float32)
-                    pair[order] = np.stack([guide.image(a, z) for a, z in zip(first, last)])
-                    img = torch.from_numpy(pair).to(dev)
+                    first, last = (read(k) for k in FRAME_KEYS)
+                    img = torch.from_numpy(np.stack([guide.image(a, z) for a, z in zip(first, last)])).to(dev)
                 if stage1 is not None:                     # rdnet, restore: one stage-1 pass
                     restored, counts = run_stage1(stage1, img, v, decision)
                     b["restored"] = restored.float().cpu().numpy()
