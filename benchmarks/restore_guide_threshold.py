@@ -157,8 +157,6 @@ def capped_counts(restored, degraded, change, bins: int):
 
 def cap_rows(params: dict, seeds, work: Path, recording: Path, thresholds: dict) -> dict:
     """Part 4 (module docstring)."""
-    import copy as _copy
-
     import numpy as np
     import torch
     from restore_frame_pair import real_scores, real_streams
@@ -175,7 +173,7 @@ def cap_rows(params: dict, seeds, work: Path, recording: Path, thresholds: dict)
     from rdnet.train.loop import predict_counts
 
     paths = {str(s): ROOT / "models" / "restore_frames" / f"seed{s}" / "model.pt" for s in seeds}
-    p = _copy.deepcopy(params)
+    p = copy.deepcopy(params)
     p["sensor"] = {**p["sensor"], "threshold_on": 0.4, "threshold_off": 0.4}
     circuit, _ = circuit_pairs(p, sequences(ROOT / "data" / "events", "test"), work / "theta0.4", 0)
     out = {}
@@ -203,9 +201,10 @@ def cap_rows(params: dict, seeds, work: Path, recording: Path, thresholds: dict)
     log_grey = np.log(rec.frames.grey().astype(np.float64) + params["sensor"]["log_eps"])
     t = rec.frames.t_us.astype(np.int64)
     ck = {s: (path, "library") for s, path in paths.items()}
+    trained = checkpoint_guide(ckpt_mod.read_checkpoint(next(iter(paths.values())))).threshold
     for label, thr in thresholds.items():
         st = real_streams(recording, ck, params, 1, guide_threshold=thr)
-        cut = thr if thr is not None else 0.2
+        cut = thr if thr is not None else trained
         capped = {"raw": st["raw"]}
         for s in ck:
             e = st[s]
